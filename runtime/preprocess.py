@@ -1,0 +1,128 @@
+"""Raw camera depth -> policy input. The ONE implementation: the trainer, the DDG and the runtime import it.
+
+Pipeline (each step its own function so the dataset path can stop half way):
+
+1. ``crop_resize``: uint16 sensor frame -> uint16 frame at the policy resolution. The crop window is
+   fixed at deploy time (centred) and randomised per episode in training (paper: 450x580 out of 1280x720,
+   scaled here to the 848x480 stream). Resizing is nearest-neighbour on purpose: averaging would blend the
+   0 ("no data") pixels into their neighbours and invent flying pixels that the sensor never produced.
+   Demos and DDG output are stored after this step, still in sensor units (uint16 millimetres).
+2. ``normalise``: uint16 -> float32. Valid depth is clipped to [near_m, far_m] and mapped to [0, 1];
+   0 ("no data") becomes ``invalid_value`` (-1), outside the valid range, so the network can tell
+   "nothing measured" from "very near".
+
+``preprocess`` = ``normalise(crop_resize(...))``; tests prove the two paths are bit-identical.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+
+class PreprocessError(ValueError):
+    """A depth frame that cannot be turned into a policy input (wrong dtype, shape, window)."""
+
+
+@dataclass(frozen=True)
+class DepthSpec:
+    """Stream mode of the camera and the policy's view of it. Travels in the policy file's metadata."""
+
+    stream_width: int = 848
+    """D455 depth stream: 848x480 is the vendor's recommended depth mode (best depth quality)."""
+    stream_height: int = 480
+    crop_height: int = 300
+    """Crop window, scaled from the paper's 450x580 of 1280x720 (0.625 x 480 rows, ~0.47 x 848 columns)."""
+    crop_width: int = 400
+    out_height: int = 96
+    """Policy resolution: the crop downsampled by 3.125 in both axes."""
+    out_width: int = 128
+    near_m: float = 0.3
+    """Metric range kept; the D455's min-z at 848x480 is ~0.34 m, the table is ~0.9 m away."""
+    far_m: float = 1.5
+    invalid_value: float = -1.0
+    """Value of a pixel with no depth (sensor 0) after normalisation."""
+
+    def __post_init__(self) -> None:
+        if not (0 < self.crop_height <= self.stream_height and 0 < self.crop_width <= self.stream_width):
+            raise PreprocessError(f"crop {self.crop_height}x{self.crop_width} does not fit the stream "
+                                  f"{self.stream_height}x{self.stream_width}")
+        if not (0 < self.out_height <= self.crop_height and 0 < self.out_width <= self.crop_width):
+            raise PreprocessError(f"output {self.out_height}x{self.out_width} must be within the crop")
+        if not (0 < self.near_m < self.far_m):
+            raise PreprocessError(f"need 0 < near_m < far_m, got {self.near_m}, {self.far_m}")
+        if 0.0 <= self.invalid_value <= 1.0:
+            raise PreprocessError(f"invalid_value {self.invalid_value} collides with valid depth in [0, 1]")
+
+    def centred_window(self) -> tuple[int, int]:
+        """(top, left) of the deploy-time crop: centred in the stream."""
+        return (self.stream_height - self.crop_height) // 2, (self.stream_width - self.crop_width) // 2
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> DepthSpec:
+        unknown = set(d) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise PreprocessError(f"unknown preprocessing parameters {sorted(unknown)}")
+        return cls(**d)
+
+
+def crop_resize(raw: np.ndarray, spec: DepthSpec, window: tuple[int, int] | None = None) -> np.ndarray:
+    """Crop ``raw`` (uint16, H x W, any size holding the window) at ``window`` = (top, left) and
+    nearest-neighbour resize to the policy resolution. Returns uint16, still in sensor units."""
+    if not isinstance(raw, np.ndarray) or raw.dtype != np.uint16 or raw.ndim != 2:
+        got = f"{raw.dtype} array of shape {raw.shape}" if isinstance(raw, np.ndarray) else type(raw).__name__
+        raise PreprocessError(f"depth frame must be a 2-D uint16 array, got {got}")
+    top, left = spec.centred_window() if window is None else window
+    if top < 0 or left < 0 or top + spec.crop_height > raw.shape[0] or left + spec.crop_width > raw.shape[1]:
+        raise PreprocessError(f"crop window top={top} left={left} size {spec.crop_height}x{spec.crop_width} "
+                              f"does not fit a {raw.shape[0]}x{raw.shape[1]} frame")
+    rows = top + _nearest_index(spec.crop_height, spec.out_height)
+    cols = left + _nearest_index(spec.crop_width, spec.out_width)
+    return raw[np.ix_(rows, cols)]
+
+
+def normalise(depth: np.ndarray, depth_scale: float, spec: DepthSpec) -> np.ndarray:
+    """uint16 depth in sensor units (``depth_scale`` metres per unit) -> float32 policy values."""
+    if depth.dtype != np.uint16:
+        raise PreprocessError(f"depth must be uint16 sensor units, got {depth.dtype}")
+    if not (np.isfinite(depth_scale) and depth_scale > 0):
+        raise PreprocessError(f"depth_scale must be a positive number of metres per unit, got {depth_scale}")
+    metres = depth.astype(np.float32) * np.float32(depth_scale)
+    scaled = (np.clip(metres, spec.near_m, spec.far_m) - np.float32(spec.near_m)) / np.float32(
+        spec.far_m - spec.near_m)
+    return np.where(depth == 0, np.float32(spec.invalid_value), scaled).astype(np.float32)
+
+
+def preprocess(raw: np.ndarray, depth_scale: float, spec: DepthSpec,
+               window: tuple[int, int] | None = None) -> np.ndarray:
+    """Raw sensor frame -> float32 [out_height, out_width] policy input."""
+    return normalise(crop_resize(raw, spec, window), depth_scale, spec)
+
+
+class FrameStack:
+    """The last ``n`` preprocessed frames, oldest first. The first frame of an episode fills every slot,
+    in training and at deploy time alike, so the policy never sees an all-empty history."""
+
+    def __init__(self, n: int = 3) -> None:
+        self._frames: deque[np.ndarray] = deque(maxlen=n)
+
+    def push(self, frame: np.ndarray) -> np.ndarray:
+        """Add the newest frame; return the stack as float32 [n, H, W]."""
+        if not self._frames:
+            self._frames.extend([frame] * self._frames.maxlen)
+        else:
+            self._frames.append(frame)
+        return np.stack(self._frames)
+
+    def reset(self) -> None:
+        self._frames.clear()
+
+
+def _nearest_index(src: int, dst: int) -> np.ndarray:
+    """Index of the source pixel whose centre is nearest each destination pixel centre."""
+    return np.minimum(((np.arange(dst) + 0.5) * src / dst).astype(np.int64), src - 1)
