@@ -161,3 +161,16 @@ def _count(frames: Any) -> str:
         return str(len(frames))
     except TypeError:
         return type(frames).__name__
+
+
+# Default endpoints: loopback only. A robot address names the driver's state port; commands go to port + 1.
+DEFAULT_CAMERA = "tcp://127.0.0.1:5555"
+DEFAULT_ROBOT = "tcp://127.0.0.1:5556"
+
+
+def robot_endpoints(robot: str) -> tuple[str, str]:
+    """(state endpoint, command endpoint) of a driver at ``robot`` = tcp://HOST:PORT."""
+    head, sep, port = robot.rpartition(":")
+    if not (robot.startswith("tcp://") and sep and port.isdigit()):
+        raise ValueError(f"robot address must look like tcp://HOST:PORT, got {robot!r}")
+    return robot, f"{head}:{int(port) + 1}"

@@ -1,0 +1,90 @@
+"""The policy file's self-description (contract): one JSON document in ``student.onnx``'s metadata_props.
+
+Export writes it, the runtime reads it and refuses a file whose schema it does not know. Normalisation
+is applied inside the graph; the statistics are repeated here so a reader can audit them.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from runtime.preprocess import DepthSpec
+
+SCHEMA = "diffudepgrasp.policy/1"
+METADATA_KEY = "diffudepgrasp"  # the metadata_props key that holds the JSON
+
+
+class MetadataError(ValueError):
+    """A policy file whose metadata is missing, of an unknown schema, or inconsistent."""
+
+
+@dataclass(frozen=True)
+class PolicyMetadata:
+    preprocess: DepthSpec
+    """How raw depth becomes the ``depth`` input; the runtime applies exactly this."""
+    control_rate_hz: float = 10.0
+    action_scale: float = 0.05
+    """``s`` of paper eq. 1, already applied to the 7 joint deltas the graph outputs (radians)."""
+    obs_horizon: int = 3
+    """Depth frames stacked in the ``depth`` input, oldest first."""
+    action_horizon: int = 16
+    """Ha: actions predicted per inference."""
+    exec_horizon: int = 8
+    """Actions executed from each chunk before the next inference result replaces them."""
+    ddim_steps: int = 4
+    state_dim: int = 8
+    action_dim: int = 8
+    normalisation: dict[str, Any] = field(default_factory=dict)
+    """Statistics used inside the graph (e.g. state/action min and max), for audit."""
+    training_data: dict[str, Any] = field(default_factory=dict)
+    """Fingerprint of the demos, depth source (gt|randnoise|ddg|...), training command."""
+    trained: bool = False
+    """False for the untrained fixtures that tests build; the runtime warns loudly when running one."""
+    schema: str = SCHEMA
+
+    def __post_init__(self) -> None:
+        if self.schema != SCHEMA:
+            raise MetadataError(f"policy metadata schema {self.schema!r} is not supported "
+                                f"(expected {SCHEMA!r})")
+        if not (0 < self.exec_horizon <= self.action_horizon):
+            raise MetadataError(f"exec_horizon {self.exec_horizon} must be in 1..action_horizon "
+                                f"({self.action_horizon})")
+        for name in ("control_rate_hz", "action_scale"):
+            if not getattr(self, name) > 0:
+                raise MetadataError(f"{name} must be positive, got {getattr(self, name)}")
+        for name in ("obs_horizon", "ddim_steps", "state_dim", "action_dim"):
+            if not getattr(self, name) >= 1:
+                raise MetadataError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+    def input_shapes(self) -> dict[str, list[int]]:
+        """Static graph input shapes, batch 1."""
+        spec = self.preprocess
+        return {"depth": [1, self.obs_horizon, spec.out_height, spec.out_width],
+                "state": [1, self.state_dim],
+                "noise": [1, self.action_horizon, self.action_dim]}
+
+    def to_json(self) -> str:
+        d = asdict(self)
+        d["preprocess"] = self.preprocess.to_dict()
+        return json.dumps(d, sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> PolicyMetadata:
+        try:
+            d = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise MetadataError(f"policy metadata is not valid JSON: {exc}") from None
+        if not isinstance(d, dict):
+            raise MetadataError("policy metadata must be a JSON object")
+        if d.get("schema") != SCHEMA:
+            raise MetadataError(f"policy metadata schema {d.get('schema')!r} is not supported "
+                                f"(expected {SCHEMA!r}); re-export the student with this version")
+        unknown = set(d) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise MetadataError(f"unknown policy metadata fields {sorted(unknown)}")
+        try:
+            return cls(**{**d, "preprocess": DepthSpec.from_dict(d.get("preprocess", {}))})
+        except (TypeError, ValueError) as exc:
+            raise MetadataError(f"invalid policy metadata: {exc}") from None
