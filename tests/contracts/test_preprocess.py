@@ -1,0 +1,80 @@
+import numpy as np
+import pytest
+
+from runtime.preprocess import DepthSpec, FrameStack, PreprocessError, crop_resize, normalise, preprocess
+
+SPEC = DepthSpec()
+
+
+def _frame(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    frame = rng.integers(200, 2500, size=(SPEC.stream_height, SPEC.stream_width)).astype(np.uint16)
+    frame[rng.random(frame.shape) < 0.1] = 0
+    return frame
+
+
+def test_two_step_path_equals_one_step_bit_exact():
+    raw = _frame()
+    two_step = normalise(crop_resize(raw, SPEC), 0.001, SPEC)
+    np.testing.assert_array_equal(preprocess(raw, 0.001, SPEC), two_step)
+
+
+def test_shape_dtype_and_range():
+    out = preprocess(_frame(), 0.001, SPEC)
+    assert out.shape == (SPEC.out_height, SPEC.out_width) and out.dtype == np.float32
+    valid = out[out != SPEC.invalid_value]
+    assert valid.min() >= 0.0 and valid.max() <= 1.0
+
+
+def test_holes_stay_holes_and_never_blend():
+    raw = np.full((SPEC.stream_height, SPEC.stream_width), 900, np.uint16)
+    raw[::2, ::2] = 0  # dense holes: any averaging resizer would produce values between 0 and 900
+    small = crop_resize(raw, SPEC)
+    assert set(np.unique(small)) <= {0, 900}
+
+
+def test_metric_mapping_and_clipping():
+    raw = np.zeros((SPEC.stream_height, SPEC.stream_width), np.uint16)
+    raw[:, :300] = 100    # 0.1 m: nearer than near_m -> clipped to 0
+    raw[:, 300:600] = 900  # 0.9 m -> (0.9-0.3)/1.2 = 0.5
+    raw[:, 600:] = 5000   # 5 m: farther than far_m -> clipped to 1
+    out = preprocess(raw, 0.001, SPEC, window=(0, 0))
+    assert out[0, 0] == 0.0
+    cols = np.round((np.arange(SPEC.out_width) + 0.5) * SPEC.crop_width / SPEC.out_width - 0.5)
+    mid = int(np.argmax(cols >= 310))
+    assert out[0, mid] == pytest.approx(0.5, abs=1e-6)
+
+
+def test_crop_window_moves_the_view():
+    raw = np.zeros((SPEC.stream_height, SPEC.stream_width), np.uint16)
+    raw[:, 500:] = 1000
+    left = crop_resize(raw, SPEC, window=(0, 0))
+    right = crop_resize(raw, SPEC, window=(0, SPEC.stream_width - SPEC.crop_width))
+    assert (left == 0).all() and (right != 0).any()
+
+
+@pytest.mark.parametrize("bad", [np.zeros((480, 848), np.float32), np.zeros((480, 848, 1), np.uint16),
+                                 np.zeros((100, 100), np.uint16)])
+def test_bad_frames_named_in_error(bad):
+    with pytest.raises(PreprocessError):
+        preprocess(bad, 0.001, SPEC)
+
+
+def test_bad_scale_and_spec():
+    with pytest.raises(PreprocessError, match="depth_scale"):
+        normalise(np.zeros((4, 4), np.uint16), 0.0, SPEC)
+    with pytest.raises(PreprocessError, match="near_m"):
+        DepthSpec(near_m=2.0, far_m=1.0)
+    with pytest.raises(PreprocessError, match="unknown"):
+        DepthSpec.from_dict({"bogus": 1})
+
+
+def test_frame_stack_fills_then_rolls_oldest_first():
+    stack = FrameStack(3)
+    a, b, c, d = (np.full((2, 2), v, np.float32) for v in range(4))
+    assert stack.push(a)[:, 0, 0].tolist() == [0, 0, 0]
+    stack.push(b)
+    stack.push(c)
+    assert stack.push(d)[:, 0, 0].tolist() == [1, 2, 3]
+    stack.reset()
+    assert stack.push(d)[:, 0, 0].tolist() == [3, 3, 3]
