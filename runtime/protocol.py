@@ -58,7 +58,11 @@ def _is(kind: type, doc: str):
 _num.__doc__ = "a finite number"
 _int.__doc__ = "an integer"
 _STR = _is(str, "a string")
-_BOOL = _is(bool, "a boolean")
+def _BOOL(x: Any) -> bool:
+    return isinstance(x, bool)
+
+
+_BOOL.__doc__ = "a boolean"
 
 _COMMON = {"v": _int, "kind": _STR, "seq": _int, "t_send": _num}
 _FIELDS: dict[str, dict[str, Any]] = {
@@ -140,7 +144,7 @@ def _validate(header: Any, payload_len: int) -> None:
     if version != VERSION:
         raise ProtocolError(f"protocol version {version!r} not supported (this side speaks {VERSION})")
     kind = header.get("kind")
-    if kind not in _FIELDS:
+    if not isinstance(kind, str) or kind not in _FIELDS:
         raise ProtocolError(f"unknown message kind {kind!r}; known: {', '.join(KINDS)}")
     for name, check in {**_COMMON, **_FIELDS[kind]}.items():
         if name not in header:

@@ -1,0 +1,47 @@
+"""``python -m export CHECKPOINT --ddim-steps K --out student.onnx [--int8]``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import onnx
+
+from export.graph import build_model
+from trainer.student import checkpoint
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m export", description="Freeze a student checkpoint into one "
+                                "self-describing ONNX policy file (DDIM unrolled, metadata inside).")
+    p.add_argument("checkpoint", type=Path, help="student checkpoint (.pt) from `trainer student fit|init`")
+    p.add_argument("--ddim-steps", type=int, default=4, help="DDIM updates unrolled in the graph (default 4)")
+    p.add_argument("--out", type=Path, default=Path("student.onnx"), help="output ONNX file")
+    p.add_argument("--int8", action="store_true",
+                   help="static QDQ int8 quantisation of the encoder; kept only if faster and accurate")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    try:
+        ckpt = checkpoint.load(args.checkpoint)
+    except checkpoint.CheckpointError as exc:
+        print(f"export: {exc}", file=sys.stderr)
+        return 2
+    model, meta = build_model(ckpt, args.checkpoint, args.ddim_steps)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    report = {"out": str(args.out), "ddim_steps": meta.ddim_steps, "trained": meta.trained}
+    if args.int8:
+        from export.quantize import quantize_if_worth_it
+        model, report["int8"] = quantize_if_worth_it(model, ckpt)
+    onnx.save(model, args.out)
+    report["bytes"] = args.out.stat().st_size
+    print(json.dumps(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

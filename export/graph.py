@@ -1,0 +1,90 @@
+"""Student checkpoint -> one ONNX graph: encoder once, K DDIM updates unrolled, un-normalisation inside."""
+
+from __future__ import annotations
+
+import io
+import warnings
+from pathlib import Path
+
+import onnx
+import torch
+from torch import nn
+
+from runtime.metadata import METADATA_KEY, PolicyMetadata
+from trainer.student.checkpoint import Checkpoint, sha256
+from trainer.student.ddim import ddim_plan, ddim_update
+from trainer.student.model import StudentPolicy
+
+INPUT_NAMES = ("depth", "state", "noise")
+OUTPUT_NAMES = ("actions",)
+OPSET = 18
+
+
+class UnrolledPolicy(nn.Module):
+    """(depth, state, noise) -> actions in robot units; the DDIM timesteps are Python constants, so tracing
+    unrolls the loop and bakes each step's coefficients into the graph."""
+
+    def __init__(self, policy: StudentPolicy, ddim_steps: int, action_scale: float) -> None:
+        super().__init__()
+        self.policy = policy
+        self.plan = ddim_plan(policy.config.train_timesteps, ddim_steps)
+        joint_scale = torch.ones(policy.config.action_dim)
+        joint_scale[:7] = action_scale  # paper eq. 1: the 7 joint deltas in radians; the gripper stays as is
+        self.register_buffer("robot_scale", joint_scale)
+
+    def forward(self, depth: torch.Tensor, state: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+        obs = self.policy.encode(depth, state)
+        x = noise
+        for step in self.plan:
+            steps = torch.full((x.shape[0],), step.timestep, dtype=torch.int64)
+            x = ddim_update(x, self.policy(x, steps, obs), step)
+        return self.policy.action_norm.unnormalise(x) * self.robot_scale
+
+
+def example_inputs(meta: PolicyMetadata, seed: int = 0) -> tuple[torch.Tensor, ...]:
+    """Random inputs of the graph's static shapes: depth in [0, 1] with some -1 holes, state, noise."""
+    g = torch.Generator().manual_seed(seed)
+    shapes = meta.input_shapes()
+    depth = torch.rand(shapes["depth"], generator=g)
+    depth[torch.rand(shapes["depth"], generator=g) < 0.1] = meta.preprocess.invalid_value
+    return depth, torch.randn(shapes["state"], generator=g) * 0.5, torch.randn(shapes["noise"], generator=g)
+
+
+def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path) -> PolicyMetadata:
+    cfg, info, net = ckpt.config, ckpt.info, ckpt.policy()
+    return PolicyMetadata(
+        preprocess=info.depth_spec, control_rate_hz=info.control_rate_hz, action_scale=info.action_scale,
+        obs_horizon=cfg.obs_horizon, action_horizon=cfg.action_horizon, exec_horizon=cfg.exec_horizon,
+        ddim_steps=ddim_steps, state_dim=cfg.state_dim, action_dim=cfg.action_dim,
+        normalisation={"state": net.state_norm.summary(), "action": net.action_norm.summary(),
+                       "action_units": "env [-1, 1]; joints x action_scale in the graph output"},
+        training_data={**info.data, "checkpoint": str(Path(ckpt_path).resolve()),
+                       "checkpoint_sha256": sha256(ckpt_path), "train_step": ckpt.step,
+                       "student_config": cfg.to_json()},
+        trained=info.trained)
+
+
+def build_model(ckpt: Checkpoint, ckpt_path: Path, ddim_steps: int) -> tuple[onnx.ModelProto, PolicyMetadata]:
+    """Trace the unrolled policy to ONNX (TorchScript exporter, one file, static shapes); attach metadata."""
+    meta = policy_metadata(ckpt, ddim_steps, ckpt_path)
+    module = UnrolledPolicy(ckpt.policy(), ddim_steps, ckpt.info.action_scale).eval()
+    buf = io.BytesIO()
+    with torch.no_grad(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # tracer warnings about Python constants are the point here
+        torch.onnx.export(module, example_inputs(meta), buf, input_names=list(INPUT_NAMES),
+                          output_names=list(OUTPUT_NAMES), opset_version=OPSET, dynamo=False)
+    model = onnx.load_from_string(buf.getvalue())
+    set_metadata(model, meta)
+    onnx.checker.check_model(model, full_check=True)
+    return model, meta
+
+
+def set_metadata(model: onnx.ModelProto, meta: PolicyMetadata) -> None:
+    del model.metadata_props[:]
+    entry = model.metadata_props.add()
+    entry.key, entry.value = METADATA_KEY, meta.to_json()
+
+
+def read_metadata(model: onnx.ModelProto) -> PolicyMetadata:
+    props = {p.key: p.value for p in model.metadata_props}
+    return PolicyMetadata.from_json(props.get(METADATA_KEY, "{}"))

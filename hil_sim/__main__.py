@@ -1,0 +1,169 @@
+"""``python -m hil_sim [--seconds S] [--rate HZ] [--model PATH] [--report DIR]``: the HIL latency benchmark.
+
+Starts the simulated camera + robot (hil_sim.server), starts the real ``runtime`` as a separate process
+against them, runs for S seconds at HZ with every process pinned to the machine's first two cores, and
+writes DIR/report.json, DIR/latency.png, DIR/ticks.jsonl, DIR/runtime.log. Exit status 0 only when the
+rate was held: no late tick and the achieved rate within 1 % of HZ.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from hil_sim import report
+from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT
+
+REPO = Path(__file__).resolve().parents[1]
+TRAINED_MODEL = REPO / "models" / "student.onnx"
+UNTRAINED_MODEL = REPO / "runs" / "hil" / "untrained_student.onnx"
+STARTUP_GRACE_S = 90.0
+
+
+class BenchmarkError(RuntimeError):
+    """The benchmark could not run (no model, runtime died, no metrics)."""
+
+
+@dataclass(frozen=True)
+class Run:
+    """One benchmark run's settings."""
+
+    seconds: float
+    rate_hz: float
+    model: Path
+    report_dir: Path
+    camera: str = DEFAULT_CAMERA
+    robot: str = DEFAULT_ROBOT
+    camera_hz: float = 15.0
+
+
+def parse(argv: list[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m hil_sim", description=__doc__.split("\n\n")[0],
+                                epilog=__doc__.split("\n\n", 1)[1])
+    p.add_argument("--seconds", type=float, default=60.0, help="length of the measured run (default 60)")
+    p.add_argument("--rate", type=float, default=10.0, help="control rate of the runtime, Hz (default 10)")
+    p.add_argument("--model", type=Path, help="student.onnx (default: models/student.onnx if it exists, else "
+                   "an UNTRAINED student built by the export code, announced as such)")
+    p.add_argument("--report", type=Path, default=REPO / "runs" / "hil",
+                   help="report folder (default runs/hil)")
+    p.add_argument("--camera", default=DEFAULT_CAMERA, help="depth PUB endpoint (default %(default)s)")
+    p.add_argument("--robot", default=DEFAULT_ROBOT, help="driver state endpoint (default %(default)s)")
+    p.add_argument("--camera-hz", type=float, default=15.0, help="simulated D455 frame rate (default 15)")
+    return p.parse_args(argv)
+
+
+def resolve_model(model: Path | None) -> Path:
+    if model is not None:
+        if not model.is_file():
+            raise BenchmarkError(f"--model {model} does not exist")
+        return model
+    if TRAINED_MODEL.is_file():
+        return TRAINED_MODEL
+    print("hil_sim: WARNING no models/student.onnx: benchmarking an UNTRAINED student (random weights, "
+          "full-size graph). Latency figures are valid; its actions are not a policy.", file=sys.stderr)
+    if not UNTRAINED_MODEL.is_file():
+        build_untrained(UNTRAINED_MODEL)
+    return UNTRAINED_MODEL
+
+
+def build_untrained(out: Path) -> None:
+    """The export engineer's CLI path: ``trainer student init`` then ``python -m export``."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    ckpt = out.with_suffix(".pt")
+    for cmd in ([sys.executable, "-m", "trainer", "student", "init", "--out", str(ckpt)],
+                [sys.executable, "-m", "export", str(ckpt), "--ddim-steps", "4", "--out", str(out)]):
+        done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
+        if done.returncode != 0:
+            raise BenchmarkError(f"building the untrained student failed: {' '.join(cmd[1:])}: "
+                                 f"{done.stderr.strip().splitlines()[-1:]}")
+
+
+def pin_cores() -> set[int]:
+    """The first two cores of this process's affinity; this process and its children stay on them."""
+    cores = set(sorted(os.sched_getaffinity(0))[:2])
+    os.sched_setaffinity(0, cores)
+    return cores
+
+
+def run_runtime(run: Run) -> tuple[int, report.Usage]:
+    """Run the real runtime process to completion; its exit code and resource use."""
+    cmd = [sys.executable, "-m", "runtime", "--model", str(run.model), "--camera", f"hil:{run.camera}",
+           "--robot", run.robot, "--rate", str(run.rate_hz), "--seconds", str(run.seconds),
+           "--metrics", str(run.report_dir / "ticks.jsonl")]
+    path = os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
+    env = dict(os.environ, PYTHONPATH=path)
+    with open(run.report_dir / "runtime.log", "w") as log:
+        start = time.monotonic()
+        # The child inherits this process's pinning to ``cores``.
+        proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
+        deadline = start + run.seconds + STARTUP_GRACE_S
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.monotonic() > deadline:
+                proc.kill()
+                pid, status, usage = os.wait4(proc.pid, 0)
+                break
+            time.sleep(0.2)
+        wall = time.monotonic() - start
+    proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here: keep Popen from waiting again
+    cpu = 100.0 * (usage.ru_utime + usage.ru_stime) / wall
+    return proc.returncode, report.Usage(cpu_percent=cpu, rss_mb=usage.ru_maxrss / 1024.0)
+
+
+def benchmark(run: Run) -> dict:
+    from hil_sim.server import SimConfig, SimServer  # heavy (MuJoCo, GL): after argument checks
+
+    cores = pin_cores()
+    run.report_dir.mkdir(parents=True, exist_ok=True)
+    config = SimConfig(camera=run.camera, robot=run.robot, camera_hz=run.camera_hz)
+    with SimServer(config) as sim:
+        t0, steps0 = time.monotonic(), sim.driver.steps
+        code, usage = run_runtime(run)
+        elapsed = time.monotonic() - t0
+        sim_stats = {"camera_fps": round(sim.camera.published / elapsed, 2),
+                     "render_ms_mean": round(sim.camera.render_ms_mean, 2),
+                     "state_hz": round((sim.driver.steps - steps0) / elapsed, 1),
+                     "physics_lag_s": round(sim.physics.lag_s, 3),
+                     "driver_error": repr(sim.driver_error) if sim.driver_error else None}
+        commands = list(sim.commands)
+    log = (run.report_dir / "runtime.log").read_text().strip().splitlines()
+    try:
+        ticks = report.load_ticks(run.report_dir / "ticks.jsonl")
+    except report.ReportError as exc:
+        raise BenchmarkError(f"runtime exited with {code} before a tick: {' | '.join(log[-3:])}") from exc
+    doc = report.build(ticks, commands, rate_hz=run.rate_hz, usage=usage)
+    doc.update(runtime_exit=code, runtime_last_words=log[-2:], model=str(run.model), cores=sorted(cores),
+               sim=sim_stats, load_avg=os.getloadavg())
+    (run.report_dir / "report.json").write_text(json.dumps(doc, indent=2) + "\n")
+    report.histogram(ticks, commands, run.report_dir / "latency.png",
+                     title=f"hil_sim: {run.rate_hz:g} Hz for {run.seconds:g} s, {doc['ticks']} ticks")
+    return doc
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse(argv)
+    try:
+        run = Run(args.seconds, args.rate, resolve_model(args.model), args.report, args.camera, args.robot,
+                  args.camera_hz)
+        doc = benchmark(run)
+    except (BenchmarkError, report.ReportError, ValueError) as exc:
+        print(f"hil_sim: {exc}", file=sys.stderr)
+        return 2
+    print(report.table(doc))
+    print(f"sim: {doc['sim']}; load {doc['load_avg']}; report: {run.report_dir / 'report.json'}")
+    if doc["runtime_exit"] != 0:
+        print(f"hil_sim: runtime exited with {doc['runtime_exit']}: {' | '.join(doc['runtime_last_words'])}",
+              file=sys.stderr)
+    return 0 if report.rate_held(doc) and doc["runtime_exit"] == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,74 @@
+"""hil_sim's MuJoCo Panda behind the driver. hil_sim is imported lazily (only ``standalone``), so the driver
+package stays importable, and lean, without it.
+
+The world is shared with a physics thread (and in hil_sim a camera thread): every access holds ``lock``.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from runtime.franka_driver.backend import Reading
+
+BASE_BODY = "robot_base"
+
+
+class MujocoBackend:
+    """``Backend`` over a ``hil_sim.world.World`` (duck-typed: model, data, q, dq, gripper_opening,
+    set_targets)."""
+
+    def __init__(self, world: Any, lock: threading.Lock, *,
+                 on_close: Callable[[], None] | None = None) -> None:
+        from hil_sim.world import ARM_JOINTS, EE_SITE
+
+        self.world, self.lock = world, lock
+        m = world.model
+        self._qadr = m.jnt_qposadr[[m.joint(n).id for n in ARM_JOINTS]]
+        self._site = m.site(EE_SITE).id
+        self._base = m.body(BASE_BODY).id
+        self._scratch = mujoco.MjData(m)  # forward kinematics of targets, never of the live state
+        self._gripper_closed = False
+        self._on_close = on_close
+
+    def read(self) -> Reading:
+        with self.lock:
+            q, dq, width = self.world.q, self.world.dq, self.world.gripper_opening
+        return Reading(time.monotonic(), q, dq, width)
+
+    def command(self, *, q_target: np.ndarray, gripper_closed: bool) -> None:
+        with self.lock:
+            self.world.set_targets(q_target, 1.0 if gripper_closed else -1.0)
+        self._gripper_closed = gripper_closed
+
+    def hold(self) -> None:
+        with self.lock:
+            self.world.set_targets(self.world.q, 1.0 if self._gripper_closed else -1.0)
+
+    def tcp(self, q: np.ndarray) -> np.ndarray:
+        d = self._scratch
+        d.qpos[self._qadr] = q
+        mujoco.mj_kinematics(self.world.model, d)
+        return d.site_xpos[self._site] - d.xpos[self._base]
+
+    def close(self) -> None:
+        self.hold()
+        if self._on_close is not None:
+            self._on_close()
+
+
+def standalone(kind: str = "cube", seed: int = 0) -> MujocoBackend:
+    """A world of its own, stepped in real time by a physics thread that stops on ``close()``."""
+    from hil_sim.server import RealtimePhysics
+    from hil_sim.world import World
+
+    world = World([kind])
+    world.reset(kind, seed, randomise=False)
+    physics = RealtimePhysics(world)
+    physics.start()
+    return MujocoBackend(world, physics.lock, on_close=physics.stop)

@@ -1,0 +1,56 @@
+import shutil
+
+import numpy as np
+import pytest
+import zarr
+
+from trainer.ddg.generate import DemoStoreError, GenerateConfig, generate
+
+
+def _run(store, model, **kw):
+    return generate(GenerateConfig(demos=str(store), model=str(model), steps=2, batch=4, chunk=8, **kw))
+
+
+def test_generate_adds_both_arrays_with_grafted_geometry(tiny_demos, tiny_model):
+    stats = _run(tiny_demos, tiny_model)
+    root = zarr.open_group(str(tiny_demos), mode="r")
+    sim, ddg, nog = (np.asarray(root[f"data/{k}"]) for k in ("depth", "depth_ddg", "depth_ddg_nograft"))
+    assert stats["frames"] == 20 and ddg.shape == sim.shape == nog.shape and ddg.dtype == np.uint16
+    keep = ddg > 0
+    assert np.array_equal(ddg[keep], sim[keep])
+    assert np.array_equal(ddg == 0, (nog == 0) | (sim < 300))
+    assert np.all(np.asarray(root["meta/ddg_done"]))
+
+
+def test_shards_cover_the_store_and_match_a_single_run(tiny_demos, tiny_model, tmp_path):
+    copy = tmp_path / "copy.zarr"
+    shutil.copytree(tiny_demos, copy)
+    _run(tiny_demos, tiny_model)
+    assert _run(copy, tiny_model, shard="1/2")["frames"] == 8  # chunk 1 of [0..8), [8..16), [16..20)
+    assert _run(copy, tiny_model, shard="0/2")["frames"] == 12
+    a, b = zarr.open_group(str(tiny_demos), mode="r"), zarr.open_group(str(copy), mode="r")
+    assert np.array_equal(np.asarray(a["data/depth_ddg"]), np.asarray(b["data/depth_ddg"]))
+
+
+def test_resume_skips_finished_chunks(tiny_demos, tiny_model):
+    _run(tiny_demos, tiny_model, shard="0/2")
+    assert _run(tiny_demos, tiny_model)["frames"] == 8
+    assert _run(tiny_demos, tiny_model)["frames"] == 0
+
+
+def test_resume_with_other_settings_is_refused(tiny_demos, tiny_model):
+    _run(tiny_demos, tiny_model)
+    with pytest.raises(DemoStoreError, match="already holds DDG depth"):
+        generate(GenerateConfig(demos=str(tiny_demos), model=str(tiny_model), steps=5, chunk=8))
+
+
+def test_bad_stores_and_shards(tmp_path, tiny_model):
+    with pytest.raises(DemoStoreError, match="no demo store"):
+        _run(tmp_path / "nope.zarr", tiny_model)
+    zarr.open_group(str(tmp_path / "empty.zarr"), mode="w")
+    with pytest.raises(DemoStoreError, match="no data/depth"):
+        _run(tmp_path / "empty.zarr", tiny_model)
+    with pytest.raises(DemoStoreError, match="i/n"):
+        GenerateConfig(shard="2").shard_pair()
+    with pytest.raises(DemoStoreError, match="0 <= i < n"):
+        GenerateConfig(shard="3/2").shard_pair()

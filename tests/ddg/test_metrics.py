@@ -1,0 +1,39 @@
+import numpy as np
+
+from trainer.ddg.features import RandomEncoder, encoder_input, features, fid, kid
+from trainer.ddg.holestats import hole_stats
+
+from .conftest import scene
+
+
+def test_fid_and_kid_separate_distributions():
+    rng = np.random.default_rng(0)
+    a, b = rng.standard_normal((300, 16)), rng.standard_normal((300, 16))
+    shifted = rng.standard_normal((300, 16)) + 1.0
+    assert fid(a, b) < 0.5 < fid(a, shifted)
+    assert abs(kid(a, b)) < 0.02 < kid(a, shifted)
+
+
+def test_encoder_is_fixed_and_sees_holes():
+    rng = np.random.default_rng(1)
+    clean = np.stack([scene(rng) for _ in range(4)])
+    holed = clean.copy()
+    holed[:, 30:50, 30:60] = 0
+    e1, e2 = features(clean, RandomEncoder()), features(clean, RandomEncoder())
+    assert np.array_equal(e1, e2) and e1.shape == (4, 288)
+    assert np.abs(features(holed) - e1).mean() > 1e-3
+    x = encoder_input(holed)
+    assert x[0, 1, 40, 40] == 1 and x[0, 0, 40, 40] == 0
+
+
+def test_hole_stats_on_a_known_frame():
+    f = np.full((1, 96, 128), 900, np.uint16)
+    f[0, 10:13, 10:13] = 0  # one 3x3 hole in a flat region
+    f[0, 50:, :] = 1100  # a depth edge at row 50
+    f[0, 50, 60] = 0  # one single-pixel hole on the edge
+    s = hole_stats(f)
+    assert s["hole_fraction"] == 10 / (96 * 128)
+    assert s["holes_per_frame"] == 2
+    assert s["hole_size_px_p50_p90"][0] == 5.0  # sizes 1 and 9
+    assert s["hole_rate_near_edges"] > s["hole_rate_flat"] > 0
+    assert s["grad_jump_fraction"] > 0

@@ -1,0 +1,158 @@
+"""The driver server over real ZeroMQ sockets on loopback, with a kinematic fake robot behind it."""
+
+import threading
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import zmq
+
+from runtime.franka_driver.limits import DQ_MAX, READY_Q
+from runtime.franka_driver.server import DriverConfig, DriverServer
+from runtime.protocol import Encoder, decode, robot_endpoints
+from runtime.transport import TransportError
+from tests.driver.fake_backend import KinematicArm
+from tests.runtime.fakes import free_port_pair
+
+TIMEOUT = 5.0
+
+
+class Harness:
+    """A driver serving in a thread, plus a client (SUB on state, PUSH on commands)."""
+
+    def __init__(self, arm: KinematicArm, **config) -> None:
+        self.arm = arm
+        self.addr = f"tcp://127.0.0.1:{free_port_pair()}"
+        self.received: list[dict] = []
+        self.server = DriverServer(arm, DriverConfig(bind=self.addr, **config),
+                                   on_command=self.received.append)
+        self.stop = threading.Event()
+        self.ctx = zmq.Context()
+        state_ep, command_ep = robot_endpoints(self.addr)
+        self.sub = self.ctx.socket(zmq.SUB)
+        self.sub.setsockopt(zmq.SUBSCRIBE, b"")
+        self.sub.connect(state_ep)
+        self.push = self.ctx.socket(zmq.PUSH)
+        self.push.connect(command_ep)
+        self.enc = Encoder()
+
+    def __enter__(self):
+        self.server.__enter__()
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+        self.error: BaseException | None = None
+        self.next_kind("state")
+        return self
+
+    def _serve(self):
+        try:
+            self.server.serve(self.stop)
+        except BaseException as exc:  # handed to the test thread
+            self.error = exc
+
+    def __exit__(self, *exc):
+        self.stop.set()
+        self.thread.join(TIMEOUT)
+        self.server.__exit__(None, None, None)
+        self.sub.close(0)
+        self.push.close(0)
+        self.ctx.term()
+
+    def send_command(self, q, *, gripper=-1.0, valid_for=0.1):
+        now = time.monotonic()
+        self.push.send_multipart(self.enc.encode("command", t_capture=now, q_target=list(map(float, q)),
+                                                 gripper=gripper, deadline=now + valid_for))
+
+    def next_kind(self, kind: str, *, timeout=TIMEOUT, where=lambda m: True):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.sub.poll(int(max(1, (end - time.monotonic()) * 1000))):
+                msg = decode(self.sub.recv_multipart())
+                if msg.kind == kind and where(msg):
+                    return msg
+        raise TimeoutError(f"no {kind} message within {timeout} s")
+
+
+def test_publishes_state_at_at_least_100_hz():
+    with Harness(KinematicArm(), state_hz=200.0) as h:
+        first = h.next_kind("state")
+        n, t0 = 0, time.monotonic()
+        while time.monotonic() - t0 < 1.0:
+            h.next_kind("state")
+            n += 1
+        last = h.next_kind("state")
+    assert n >= 100, f"only {n} states in 1 s (contract: >= 100 Hz)"
+    assert last["seq"] > first["seq"] and np.allclose(last["q"], READY_Q)
+
+
+def test_command_moves_the_arm_within_velocity_limits_and_records_receive_time():
+    with Harness(KinematicArm()) as h:
+        goal = READY_Q + 0.05
+        end = time.monotonic() + TIMEOUT
+        while time.monotonic() < end and not np.allclose(h.arm.q, goal, atol=1e-6):
+            h.send_command(goal)
+            time.sleep(0.02)
+        assert np.allclose(h.arm.q, goal, atol=1e-6)
+        state = h.next_kind("state", where=lambda m: not m["holding"])
+        assert state["fault"] == ""
+    assert h.received and all(r["t_receive"] >= r["t_send"] for r in h.received)
+    steps = np.diff(np.array([q for _, q in h.arm.history]), axis=0)
+    assert np.all(np.abs(steps) <= DQ_MAX * 0.5 / 200.0 * 3 + 1e-9)  # a late step may cover <= 3 periods
+
+
+def test_missing_commands_hold_within_250_ms_and_announce_it():
+    with Harness(KinematicArm()) as h:
+        h.send_command(READY_Q + 0.2, valid_for=10.0)  # a deadline far away: the age cap must still apply
+        h.next_kind("state", where=lambda m: not m["holding"])
+        t_last = time.monotonic()
+        status = h.next_kind("status", where=lambda m: m["code"] == "command_timeout")
+        held = h.next_kind("state", where=lambda m: m["holding"])
+        t_held = time.monotonic()
+        q1 = np.array(h.next_kind("state")["q"])
+        time.sleep(0.1)
+        q2 = np.array(h.next_kind("state")["q"])
+    assert t_held - t_last < 0.25 and held["fault"] == "command_timeout"
+    assert "holding" in status["detail"] and np.array_equal(q1, q2)
+
+
+@pytest.mark.parametrize("frames, code", [
+    ([b"\xc1\xc1", b""], "bad_message"),
+    ([msgpack.packb({"v": 99, "kind": "command"}), b""], "bad_message"),
+    ([msgpack.packb({"v": 1, "kind": "command", "seq": 0, "t_send": 0.0}), b""], "bad_message"),
+    ([b"x" * 5000, b""], "bad_message"),
+    (Encoder().encode("status", code="hello", detail=""), "wrong_kind"),
+    (Encoder().encode("command", t_capture=0.0, q_target=[0.0] * 7, gripper=0.0, deadline=1.0),
+     "stale_command"),
+])
+def test_bad_messages_are_answered_with_status_and_the_driver_keeps_serving(frames, code):
+    with Harness(KinematicArm()) as h:
+        h.push.send_multipart(frames)
+        status = h.next_kind("status", where=lambda m: m["code"] == code)
+        assert status["detail"]
+        h.next_kind("state")  # still alive
+        assert h.error is None and np.allclose(h.arm.q, READY_Q)
+
+
+def test_oversized_frame_is_dropped_by_the_transport_and_the_driver_keeps_serving():
+    with Harness(KinematicArm()) as h:
+        h.push.send_multipart([b"x" * 2_000_000, b""])
+        time.sleep(0.1)
+        h.next_kind("state")
+        assert h.error is None and np.allclose(h.arm.q, READY_Q)
+
+
+def test_backend_failure_announces_and_leaves_the_arm_holding():
+    arm = KinematicArm()
+    with Harness(arm) as h:
+        arm.fail_reads = True
+        status = h.next_kind("status", where=lambda m: m["code"] == "backend_error")
+        h.thread.join(TIMEOUT)
+        assert "communication lost" in status["detail"] and h.error is not None
+    assert arm.held >= 1
+
+
+def test_non_loopback_bind_without_keys_is_refused():
+    with pytest.raises(TransportError, match="CurveZMQ"):
+        with DriverServer(KinematicArm(), DriverConfig(bind="tcp://0.0.0.0:5999")):
+            pass

@@ -1,0 +1,56 @@
+"""Export parity: the unrolled ONNX graph equals diffusers' DDIM loop over the torch network, through
+onnxruntime, for several step counts; the file is self-describing and passes onnx.checker."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import onnx
+import pytest
+
+from export.__main__ import main as export_main
+from export.check import CheckError, run_check
+from export.graph import INPUT_NAMES, OUTPUT_NAMES, read_metadata
+
+
+def test_fixture_is_a_valid_untrained_policy(untrained_student_onnx):
+    model = onnx.load(str(untrained_student_onnx))
+    onnx.checker.check_model(model, full_check=True)
+    meta = read_metadata(model)
+    assert meta.trained is False and meta.ddim_steps == 4
+    assert [i.name for i in model.graph.input] == list(INPUT_NAMES)
+    assert [o.name for o in model.graph.output] == list(OUTPUT_NAMES)
+    shapes = {i.name: [d.dim_value for d in i.type.tensor_type.shape.dim] for i in model.graph.input}
+    assert shapes == meta.input_shapes()
+    assert [d.dim_value for d in model.graph.output[0].type.tensor_type.shape.dim] == [1, 16, 8]
+
+
+@pytest.mark.parametrize("steps", [1, 4, 8, 16])
+def test_onnx_matches_torch_ddim_loop(untrained_student_checkpoint, tmp_path, steps):
+    out = tmp_path / f"k{steps}.onnx"
+    ckpt = str(untrained_student_checkpoint)
+    assert export_main([ckpt, "--ddim-steps", str(steps), "--out", str(out)]) == 0
+    report = run_check(out, repeats=1, trials=2, threads=1)
+    assert report["ddim_steps"] == steps
+    assert report["max_abs_err"] <= 1e-5
+
+
+def test_check_cli_json(untrained_student_onnx):
+    proc = subprocess.run([sys.executable, "-m", "export.check", str(untrained_student_onnx), "--json",
+                           "--repeats", "2", "--threads", "1"], capture_output=True, text=True, check=True,
+                          timeout=300)
+    report = json.loads(proc.stdout)
+    assert {"max_abs_err", "ort_ms", "torch_ms", "speedup", "metadata"} <= set(report)
+    assert report["metadata"]["schema"] == "diffudepgrasp.policy/1"
+    assert np.isfinite(report["speedup"]) and report["max_abs_err"] <= 1e-5
+
+
+def test_check_refuses_a_foreign_checkpoint(untrained_student_onnx, tmp_path):
+    other = tmp_path / "other.pt"
+    from trainer.student.cli import main as student_main
+    assert student_main(["init", "--out", str(other), "--width", "8", "--head-dims", "16", "32"]) == 0
+    with pytest.raises(CheckError, match="sha256"):
+        run_check(untrained_student_onnx, other, repeats=1, trials=1, threads=1)

@@ -1,0 +1,155 @@
+"""The control loop against fakes on a virtual clock: exact timing, chunks, skips, stalls, NaN, stop."""
+
+import io
+import json
+import threading
+
+import numpy as np
+import pytest
+
+from runtime.loop import EXIT_CAMERA, EXIT_OK, EXIT_POLICY, EXIT_ROBOT, ControlLoop, LoopConfig
+from tests.runtime.fakes import DELTA, READY_Q, FakeCamera, FakePolicy, FakeRobot, VirtualClock
+
+P = 0.1  # 10 Hz, as deployed; the clock is virtual, so long runs cost nothing
+EPS = 1e-6
+
+
+def _run(*, camera_period=P, camera=None, policy=None, robot=None, stop_at=None, **config):
+    clock = VirtualClock()
+    camera = camera(clock) if camera else FakeCamera(clock, camera_period)
+    policy = policy(clock) if policy else FakePolicy(clock)
+    robot = robot(clock) if robot else FakeRobot(clock)
+    stop = threading.Event()
+    clock.stop, clock.stop_at = stop, None if stop_at is None else clock() + stop_at
+    metrics = io.StringIO()
+    loop = ControlLoop(policy, camera, robot, LoopConfig(rate_hz=1 / P, **config), metrics=metrics, stop=stop,
+                       clock=clock)
+    code = loop.run()
+    ticks = [json.loads(line) for line in metrics.getvalue().splitlines()]
+    return code, ticks, robot.commands, loop, camera, policy
+
+
+def _sent(ticks):
+    return [t for t in ticks if t["t_send"] is not None]
+
+
+@pytest.mark.parametrize("camera_period", [P, P / 3, 1 / 15])  # 10, 30 and 15 fps (hil_sim's camera)
+def test_absolute_deadlines_no_drift_no_late_ticks_and_young_frames(camera_period):
+    code, ticks, _, loop, camera, _ = _run(camera_period=camera_period, seconds=60.0)
+    assert code == EXIT_OK and len(ticks) == 601
+    deadlines = np.array([t["deadline"] for t in ticks])
+    np.testing.assert_allclose(deadlines - deadlines[0], np.arange(601) * P, atol=EPS)  # t0 + k * period
+    assert loop.counts["late"] == loop.counts["skipped"] == 0 and all(not t["hold"] for t in ticks)
+    offsets = np.array([t["t_send"] - t["deadline"] for t in ticks])
+    assert (offsets < 0).all()
+    np.testing.assert_allclose(offsets[480:580], offsets[:100], atol=EPS)  # same phase 48 s later
+    # every tick works on a frame the moment it arrives: age = the camera's own delay, whatever its rate
+    ages = np.array([t["t_preprocess"] - t["t_capture"] for t in ticks])
+    np.testing.assert_allclose(ages, camera.delay, atol=EPS)
+    assert len({t["frame"] for t in ticks}) == len(ticks)  # and never the same frame twice
+
+
+def test_action_chunks_execute_one_action_per_tick():
+    code, ticks, commands, _, _, policy = _run(policy=lambda c: FakePolicy(c, exec_horizon=4), seconds=2.0)
+    assert code == EXIT_OK and len(ticks) == 21 and policy.calls == 6
+    assert [t["tick"] for t in ticks if t["t_inference"] is not None] == [0, 4, 8, 12, 16, 20]
+    for tick, cmd in zip(ticks, commands, strict=False):
+        index = tick["tick"] % 4
+        np.testing.assert_allclose(cmd["q_target"][0] - READY_Q[0], DELTA * (index + 1), atol=1e-6)
+        np.testing.assert_allclose(cmd["q_target"][1:] - READY_Q[1:], DELTA, atol=1e-6)
+        assert cmd["gripper"] == 1.0 and cmd["deadline"] == pytest.approx(cmd["t_send"] + 1.5 * P)
+        assert cmd["t_capture"] == tick["t_capture"]
+
+
+def test_slow_inference_makes_late_ticks_skips_and_never_bursts():
+    slow = lambda c: FakePolicy(c, delay=1.6 * P, exec_horizon=6)  # noqa: E731
+    code, ticks, commands, loop, _, policy = _run(policy=slow, seconds=6.0)
+    assert code == EXIT_OK
+    late, skipped = [t for t in ticks if t["late"]], [t for t in ticks if t["skipped"]]
+    assert late and skipped and loop.counts["skipped"] == len(skipped) and loop.counts["late"] == len(late)
+    assert all(t["t_send"] is None and t["cmd_seq"] is None for t in skipped)
+    for tick in _sent(ticks):  # never queued: no command ahead of its own frame window, none late by more
+        assert tick["t_send"] >= tick["deadline"] - 0.8 * P - P  # than its own inference overran
+        assert tick["t_send"] - tick["deadline"] <= policy.delay
+    chunk_tick = None
+    for tick in _sent(ticks):  # an action whose tick was skipped is dropped: the index follows the clock
+        chunk_tick = tick["tick"] if tick["t_inference"] is not None else chunk_tick
+        np.testing.assert_allclose(commands[tick["cmd_seq"]]["q_target"][0] - READY_Q[0],
+                                   DELTA * (tick["tick"] - chunk_tick + 1), atol=1e-6)
+
+
+def test_camera_stall_is_detected_within_one_period_then_holds_and_exits():
+    code, ticks, commands, _, camera, _ = _run(camera=lambda c: FakeCamera(c, P, stop_after=30),
+                                               camera_give_up_s=1.0)
+    assert code == EXIT_CAMERA
+    holds = [t for t in ticks if t["hold"]]
+    assert holds and holds[0]["status"] == "camera_stalled"
+    assert 0 < holds[0]["t_send"] - camera.arrival(30) <= P + 1e-3  # 1 period after the frame never came
+    for cmd in commands[holds[0]["cmd_seq"]:]:  # every later command, the final one too, holds still
+        np.testing.assert_allclose(cmd["q_target"], READY_Q)
+        assert cmd["gripper"] == 1.0
+    hold_sends = np.array([t["t_send"] for t in holds])
+    assert np.diff(hold_sends).min() > 0.5 * P  # holding keeps the tick pace, no flood
+    assert 10 <= len(holds) <= 12 and len(commands) == len(_sent(ticks)) + 1  # 1 s of holds + the final one
+
+
+def test_camera_that_comes_back_resumes():
+    class Gap(FakeCamera):  # frames 20..24 are lost
+        def poll(self, timeout_s):
+            frame = super().poll(timeout_s)
+            return None if frame is not None and 20 <= frame.number < 25 else frame
+
+    code, ticks, _, _, _, _ = _run(camera=lambda c: Gap(c, P), seconds=5.0)
+    assert code == EXIT_OK
+    statuses = [t["status"] for t in ticks]
+    first, last = statuses.index("camera_stalled"), len(statuses) - statuses[::-1].index("camera_stalled")
+    assert all(t["hold"] for t in ticks[first:last]) and 3 <= last - first <= 4
+    assert not any(t["hold"] for t in ticks[last:]) and ticks[last]["t_inference"] is not None
+
+
+def test_frames_that_arrive_stale_are_not_used():
+    code, ticks, _, loop, _, _ = _run(camera=lambda c: FakeCamera(c, P, age=2 * P), startup_timeout_s=1.0)
+    assert code == EXIT_CAMERA and ticks == [] and loop.counts["stale_frames"] >= 9
+
+
+def test_nan_action_holds_and_recovers():
+    code, ticks, commands, _, _, _ = _run(policy=lambda c: FakePolicy(c, nan_calls={2}, exec_horizon=3),
+                                          seconds=1.0)
+    assert code == EXIT_OK
+    nan_tick = next(t for t in ticks if t["status"] == "nan_action")
+    assert nan_tick["hold"] and nan_tick["tick"] == 3
+    np.testing.assert_allclose(commands[nan_tick["cmd_seq"]]["q_target"], READY_Q)
+    after = ticks[4]
+    assert not after["hold"] and after["t_inference"] is not None and after["status"] is None
+
+
+def test_persistent_nan_gives_up():
+    code, ticks, commands, _, _, _ = _run(policy=lambda c: FakePolicy(c, nan_calls=set(range(1, 100))),
+                                          policy_give_up_s=0.5)
+    assert code == EXIT_POLICY and all(t["hold"] for t in ticks) and 5 <= len(ticks) <= 7
+    np.testing.assert_allclose(commands[-1]["q_target"], READY_Q)
+
+
+def test_stale_robot_state_holds_then_exits():
+    code, ticks, commands, _, _, _ = _run(robot=lambda c: FakeRobot(c, stale_after=c() + 2.0),
+                                          robot_give_up_s=0.5)
+    assert code == EXIT_ROBOT
+    holds = [t for t in ticks if t["hold"]]
+    assert holds and holds[0]["status"] == "robot_stalled" and 5 <= len(holds) <= 7
+    np.testing.assert_allclose(commands[-1]["q_target"], READY_Q)
+
+
+def test_stop_ends_with_a_hold_command():
+    code, ticks, commands, _, _, _ = _run(stop_at=2.0)
+    assert code == EXIT_OK and len(ticks) >= 10
+    moving = READY_Q + DELTA * np.array([ticks[-1]["tick"] % 8 + 1, 1, 1, 1, 1, 1, 1])
+    np.testing.assert_allclose(commands[-2]["q_target"], moving, atol=1e-6)  # it was moving ...
+    np.testing.assert_allclose(commands[-1]["q_target"], READY_Q)  # ... and ends holding
+    assert commands[-1]["gripper"] == commands[-2]["gripper"] == 1.0
+
+
+@pytest.mark.parametrize("field, value", [("rate_hz", 0), ("seconds", -1.0), ("camera_give_up_s", 0),
+                                          ("work_budget", 1.0)])
+def test_bad_loop_config_is_named(field, value):
+    with pytest.raises(ValueError, match=field):
+        LoopConfig(**{field: value})

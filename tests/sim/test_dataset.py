@@ -1,0 +1,100 @@
+"""Demo store: round trip, layout names, resume after an interrupted write, clear errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from runtime.preprocess import DepthSpec
+from trainer.dataset import DatasetError, DemoStore, EpisodeRecord
+
+
+def _episode(steps: int, seed: int, rgb: bool = False) -> EpisodeRecord:
+    rng = np.random.default_rng(seed)
+    return EpisodeRecord(
+        depth=rng.integers(0, 3000, (steps, 96, 128), dtype=np.uint16),
+        state=rng.normal(size=(steps, 8)).astype(np.float32),
+        action=rng.uniform(-1, 1, (steps, 8)).astype(np.float32),
+        kind=["apple", "banana"][seed % 2], seed=seed, crop_window=(80 + seed, 200 - seed),
+        camera_K=np.diag([424.5, 424.2, 1.0]), camera_extrinsics=np.eye(4) * (seed + 1),
+        randomisation={"seed": seed, "joint_friction": [0.1] * 7},
+        rgb=rng.integers(0, 255, (steps, 96, 128, 3), dtype=np.uint8) if rgb else None)
+
+
+def _create(path, rgb: bool = False) -> DemoStore:
+    return DemoStore.create(path, spec=DepthSpec(), action_scale=0.05, control_rate_hz=10.0, rgb=rgb)
+
+
+@pytest.mark.parametrize("rgb", [False, True])
+def test_round_trip(tmp_path, rgb: bool) -> None:
+    store = _create(tmp_path / "d.zarr", rgb=rgb)
+    eps = [_episode(n, i, rgb) for i, n in enumerate((5, 9, 3))]
+    for ep in eps:
+        store.append(ep)
+        store.count(success=True)
+    store.count(success=False)
+    back = DemoStore.open(tmp_path / "d.zarr")
+    np.testing.assert_array_equal(back.episode_ends, [5, 14, 17])
+    assert back.n_steps == 17 and back.n_episodes == 3
+    attrs = back.attrs
+    assert (attrs["attempted"], attrs["succeeded"], attrs["failed"]) == (4, 3, 1)
+    assert attrs["depth_scale"] == 0.001 and attrs["action_scale"] == 0.05 and attrs["control_rate_hz"] == 10
+    assert back.depth_spec == DepthSpec()
+    for i, ep in enumerate(eps):
+        got = back.episode(i)
+        for name in ("depth", "state", "action", *(["rgb"] if rgb else [])):
+            np.testing.assert_array_equal(got[name], getattr(ep, name))
+            assert got[name].dtype == getattr(ep, name).dtype
+        assert got["kind"] == ep.kind and int(got["seed"]) == ep.seed
+        assert tuple(got["crop_window"]) == ep.crop_window
+        np.testing.assert_array_equal(got["camera_extrinsics"], ep.camera_extrinsics)
+        assert got["randomisation"] == ep.randomisation
+    assert back.root["data/depth"].dtype == np.uint16 and back.root["data/depth"].shape == (17, 96, 128)
+    assert json.loads(str(back.root["meta/randomisation"][1]))["seed"] == 1
+
+
+def test_interrupted_append_is_cut_back_on_resume(tmp_path, monkeypatch) -> None:
+    store = _create(tmp_path / "d.zarr")
+    store.append(_episode(4, 0))
+    array_type = type(store.root["meta/episode_ends"])
+    original = array_type.append
+
+    class Crash(RuntimeError):
+        pass
+
+    def crash(self, *args, **kwargs):  # dies after data/ and meta/ were appended, before episode_ends
+        if self.path.endswith("episode_ends"):
+            raise Crash
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(array_type, "append", crash, raising=True)
+    with pytest.raises(Crash):
+        store.append(_episode(6, 1))
+    monkeypatch.undo()
+    assert store.root["data/depth"].shape[0] == 10  # the partial episode is on disk ...
+    resumed = DemoStore.create(tmp_path / "d.zarr", spec=DepthSpec(), action_scale=0.05, control_rate_hz=10.0)
+    assert resumed.n_episodes == 1 and resumed.root["data/depth"].shape[0] == 4  # ... and cut on reopen
+    assert resumed.root["meta/kind"].shape[0] == 1
+    resumed.append(_episode(2, 2))
+    np.testing.assert_array_equal(DemoStore.open(tmp_path / "d.zarr").episode_ends, [4, 6])
+
+
+def test_unwritable_and_missing_paths_are_clear_errors(tmp_path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(DatasetError, match="cannot write a demo store"):
+        _create(blocker / "d.zarr")
+    with pytest.raises(DatasetError, match="no demo store"):
+        DemoStore.open(tmp_path / "absent.zarr")
+
+
+def test_mismatched_episode_is_rejected(tmp_path) -> None:
+    store = _create(tmp_path / "d.zarr")
+    ep = _episode(4, 0)
+    bad = EpisodeRecord(**{**ep.__dict__, "state": ep.state[:3]})
+    with pytest.raises(DatasetError, match="state has 3 steps"):
+        store.append(bad)
+    with pytest.raises(IndexError):
+        store.episode_slice(0)

@@ -1,0 +1,94 @@
+"""GraspEnv: spaces, eq. 1 action scaling, reward terms, student views (depth + state), and the expert."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hil_sim.world import TABLE_Z
+from trainer.policies import Observation, PolicyError, make_policy
+from trainer.sim.env import EnvConfig, GraspEnv
+from trainer.teacher.scripted import Phase
+
+
+@pytest.fixture(scope="module")
+def env() -> GraspEnv:
+    e = GraspEnv(EnvConfig(objects=("cube", "banana", "can", "lemon"), render_depth=False))
+    yield e
+    e.close()
+
+
+def test_reset_gives_documented_views(env: GraspEnv) -> None:
+    obs, info = env.reset(seed=3, options={"kind": "cube"})
+    assert obs.shape == (40,) and obs.dtype == np.float32 and env.observation_space.contains(obs)
+    assert "depth" not in info  # rendering is opt-in per env; the frame is always one call away
+    frame = env.frame()
+    assert frame.shape == (96, 128) and frame.dtype == np.uint16 and (frame > 0).mean() > 0.5
+    assert info["state"].shape == (8,) and info["state"][7] == pytest.approx(0.08, abs=0.002)
+    np.testing.assert_allclose(obs[:7], info["state"][:7], atol=1e-6)
+    pos, quat = env.world.object_pose()
+    np.testing.assert_allclose(obs[25:28], pos, atol=1e-6)
+    np.testing.assert_allclose(obs[32:35], [pos[0], pos[1], TABLE_Z + 0.40], atol=1e-6)
+    assert obs[35] == pytest.approx(np.log(5))  # cube is category 5
+    np.testing.assert_allclose(obs[36:39], pos - obs[18:21], atol=1e-6)
+    assert obs[39] == -1.0
+
+
+def test_action_is_a_scaled_joint_delta(env: GraspEnv) -> None:
+    env.reset(seed=4, options={"kind": "cube"})
+    q = env.world.q
+    action = np.array([0.5, -1.0, 0.2, 0.0, 1.0, -0.3, 0.7, 1.0], np.float32)
+    env.step(action)
+    np.testing.assert_allclose(env.world.data.ctrl[:7], q + 0.05 * action[:7], atol=1e-9)
+    assert env.world.data.ctrl[7] == 0.0  # gripper > 0 closes
+
+
+def test_bad_action_is_rejected(env: GraspEnv) -> None:
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="8 finite"):
+        env.step(np.zeros(7))
+
+
+def test_reward_rewards_reaching_and_penalises_jerk(env: GraspEnv) -> None:
+    obs, info = env.reset(seed=5, options={"kind": "cube"})
+    policy = make_policy("scripted")
+    policy.reset(info)
+    _, r, *_, info = env.step(policy.act(Observation(obs, None, info["state"])))
+    assert info["terms"]["reach"] > 0 and info["terms"]["accel"] <= 0
+    assert np.isfinite(r)
+
+
+@pytest.mark.parametrize("kind,seed", [("cube", 11), ("banana", 12), ("can", 13), ("lemon", 14)])
+def test_scripted_expert_grasps_and_lifts(env: GraspEnv, kind: str, seed: int) -> None:
+    obs, info = env.reset(seed=seed, options={"kind": kind})
+    expert = make_policy("scripted")
+    expert.reset(info)
+    lifted_bonus = 0.0
+    for _ in range(env.config.max_steps):
+        obs, _, terminated, truncated, info = env.step(expert.act(Observation(obs, None, info["state"])))
+        lifted_bonus += info["terms"]["bonus"]
+        if terminated or truncated:
+            break
+    assert info["success"], f"{kind} seed {seed} not grasped, expert ended in {expert.phase.name}"
+    assert expert.phase == Phase.LIFT and lifted_bonus > 0
+    assert env.world.object_pose()[0][2] > TABLE_Z + 0.36
+    assert info["state"][7] > 0.01, "fingers must be holding the object, not closed on nothing"
+
+
+def test_unknown_policy_spec_is_one_clear_error() -> None:
+    with pytest.raises(PolicyError, match="unknown policy 'magic'"):
+        make_policy("magic")
+    with pytest.raises(PolicyError, match="needs a path"):
+        make_policy("student:")
+
+
+def test_rgb_view_matches_the_depth_view() -> None:
+    env = GraspEnv(EnvConfig(objects=("apple",), render_rgb=True))
+    try:
+        _, info = env.reset(seed=1)
+        assert info["rgb"].shape == (96, 128, 3) and info["rgb"].dtype == np.uint8
+        red = (info["rgb"][..., 0] > 120) & (info["rgb"][..., 1] < 60)  # the apple
+        assert red.sum() > 10
+        assert np.all(info["depth"][red] < np.median(info["depth"][info["depth"] > 0]) + 200)
+    finally:
+        env.close()

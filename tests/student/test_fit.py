@@ -1,0 +1,70 @@
+"""``trainer student fit``: checkpoints, resume, loss curve, and torchrun (= python -m torch.distributed.run)
+data parallelism with 2 gloo ranks."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from runtime.preprocess import DepthSpec
+from tests.conftest import write_synthetic_demos
+from trainer.student import checkpoint
+from trainer.student.data import DemoDataset
+from trainer.student.train import FitError
+from trainer.student.train import main as fit_main
+
+# A reduced policy resolution keeps these runs to seconds; the model takes any H x W.
+SMALL_SPEC = DepthSpec(out_height=24, out_width=32)
+TINY = ["--width", "8", "--head-dims", "16", "32", "--state-features", "16", "--step-features", "16",
+        "--threads", "1"]
+
+
+@pytest.fixture(scope="module")
+def small_demos(tmp_path_factory):
+    return write_synthetic_demos(tmp_path_factory.mktemp("fit") / "demos.zarr", spec=SMALL_SPEC)
+
+
+def fit_args(demos, out, steps: int) -> list[str]:
+    return ["--demos", str(demos), "--out", str(out), "--steps", str(steps), "--batch", "4",
+            "--ckpt-every", "2", *TINY]
+
+
+def test_fit_writes_checkpoint_and_resumes(small_demos, tmp_path):
+    out = tmp_path / "run"
+    assert fit_main(fit_args(small_demos, out, 3)) == 0
+    first = checkpoint.load(out / "ckpt.pt")
+    assert first.step == 3 and len(first.losses) == 3 and first.info.trained
+    assert (out / "loss.png").stat().st_size > 0
+    assert first.info.data["depth_source"] == "gt" and first.info.depth_spec == SMALL_SPEC
+    demos = DemoDataset(small_demos, "gt", 3, 16)
+    np.testing.assert_allclose(first.policy().action_norm.summary()["low"], demos.action.min(0), atol=1e-6)
+    assert fit_main(fit_args(small_demos, out, 5)) == 0
+    resumed = checkpoint.load(out / "ckpt.pt")
+    assert resumed.step == 5 and resumed.losses[:3] == first.losses
+    assert json.loads((out / "summary.json").read_text())["steps_this_run"] == 2
+
+
+def test_resume_with_another_model_is_refused(small_demos, tmp_path):
+    out = tmp_path / "run"
+    assert fit_main(fit_args(small_demos, out, 1)) == 0
+    with pytest.raises(FitError, match="another --out"):
+        fit_main([*fit_args(small_demos, out, 2), "--width", "16"])
+
+
+@pytest.mark.slow
+def test_torchrun_two_gloo_processes(small_demos, tmp_path):
+    out = tmp_path / "ddp"
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+           "-m", "trainer", "student", "fit", *fit_args(small_demos, out, 3)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert summary["world_size"] == 2 and len(summary["peak_rss_mb_per_rank"]) == 2
+    assert summary["ranks_in_sync"] is True
+    assert checkpoint.load(out / "ckpt.pt").step == 3

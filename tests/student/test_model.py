@@ -1,0 +1,57 @@
+"""Model shapes, configuration checks and checkpoint round trips."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from trainer.student import checkpoint
+from trainer.student.cli import main as student_main
+from trainer.student.config import StudentConfig, StudentConfigError
+from trainer.student.model import StudentPolicy
+
+TINY = StudentConfig(width=8, head_dims=(16, 32), state_features=16, step_features=16)
+
+
+def test_noise_prediction_shape_and_conditioning():
+    torch.manual_seed(0)
+    net = StudentPolicy(TINY).eval()
+    depth, state = torch.rand(2, 3, 96, 128), torch.randn(2, 8)
+    obs = net.encode(depth, state)
+    assert obs.shape == (2, 8 * TINY.width + TINY.state_features)
+    x, k = torch.randn(2, 16, 8), torch.tensor([3, 70])
+    eps = net(x, k, obs)
+    assert eps.shape == x.shape
+    # the prediction must depend on the observation and on the diffusion step
+    assert not torch.allclose(eps, net(x, k, net.encode(depth.flip(-1), state)))
+    assert not torch.allclose(eps, net(x, torch.tensor([50, 10]), obs))
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"width": 12}, "width"),
+    ({"head_dims": (16, 20)}, "head_dims"),
+    ({"action_horizon": 10, "head_dims": (16, 32, 64)}, "action_horizon"),
+    ({"exec_horizon": 17}, "exec_horizon"),
+])
+def test_bad_config_is_refused(kwargs, match):
+    with pytest.raises(StudentConfigError, match=match):
+        StudentConfig(**kwargs)
+
+
+def test_checkpoint_round_trip_is_weights_only(tmp_path):
+    path = tmp_path / "c.pt"
+    assert student_main(["init", "--out", str(path), "--width", "8", "--head-dims", "16", "32"]) == 0
+    raw = torch.load(path, weights_only=True)  # no pickled objects: must load in the safe mode
+    assert raw["format"] == checkpoint.FORMAT
+    ckpt = checkpoint.load(path)
+    assert ckpt.config.head_dims == (16, 32) and ckpt.info.trained is False and ckpt.step == 0
+    net = ckpt.policy()
+    assert torch.equal(net.action_norm.half_range, torch.ones(8))
+    assert all(torch.equal(v, ckpt.ema[k]) for k, v in net.state_dict().items())
+
+
+def test_not_a_checkpoint_is_named(tmp_path):
+    bad = tmp_path / "x.pt"
+    torch.save({"weights": torch.zeros(1)}, bad)
+    with pytest.raises(checkpoint.CheckpointError, match="x.pt"):
+        checkpoint.load(bad)

@@ -1,0 +1,79 @@
+"""A saved PPO teacher reloads (through ``make_policy("ppo:...")``) and reproduces its actions; resume
+continues the env-step count; bad paths and configs fail with clear errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from stable_baselines3 import PPO
+
+from trainer.policies import Observation, make_policy
+from trainer.sim.env import GraspEnv
+from trainer.teacher.cli import main
+from trainer.teacher.normaliser import ObsNormaliser
+from trainer.teacher.ppo import TeacherConfig, TeacherError, load
+
+from .conftest import TINY
+
+
+def _observations(n: int) -> list[np.ndarray]:
+    env = GraspEnv(TeacherConfig(objects=("cube", "can")).env_config())
+    obs = [env.reset(seed=s)[0] for s in range(n)]
+    env.close()
+    return obs
+
+
+def test_reload_reproduces_actions(tiny_teacher):
+    model = PPO.load(tiny_teacher / "model.zip", device="cpu")
+    normaliser = ObsNormaliser.load(tiny_teacher / "normaliser.npz")
+    teacher = make_policy(f"ppo:{tiny_teacher}")
+    again = load(tiny_teacher / "model.zip")
+    for obs in _observations(3):
+        expected, _ = model.predict(normaliser(obs), deterministic=True)
+        got = teacher.act(Observation(obs, None, np.zeros(8, np.float32)))
+        assert got.shape == (8,) and got.dtype == np.float32
+        np.testing.assert_array_equal(got, expected)
+        np.testing.assert_array_equal(again.act(obs), got)
+
+
+def test_checkpoint_records_progress_and_curve(tiny_teacher):
+    meta = json.loads((tiny_teacher / "teacher.json").read_text())
+    assert meta["env_steps"] >= 128 and meta["warm_start"]["episodes"] == 2
+    rows = (tiny_teacher / "progress.csv").read_text().splitlines()
+    assert rows[0].startswith("env_steps,") and len(rows) >= 3
+    assert (tiny_teacher / "learning_curve.png").stat().st_size > 1000
+
+
+def test_resume_continues_step_count(tiny_teacher, tmp_path):
+    out = tmp_path / "resumed"
+    for name in ("model.zip", "normaliser.npz", "teacher.json", "progress.csv"):
+        (out / name).parent.mkdir(exist_ok=True)
+        (out / name).write_bytes((tiny_teacher / name).read_bytes())
+    before = json.loads((out / "teacher.json").read_text())["env_steps"]
+    assert main(["fit", "--out", str(out), "--steps", "64", "--resume", *TINY]) == 0
+    assert json.loads((out / "teacher.json").read_text())["env_steps"] == before + 64
+
+
+def test_missing_checkpoint_is_a_clear_error(tmp_path):
+    with pytest.raises(TeacherError, match="no PPO teacher checkpoint"):
+        load(tmp_path)
+    assert main(["fit", "--out", str(tmp_path), "--resume", "--steps", "8", *TINY]) == 2
+
+
+def test_config_validation_names_the_bad_value():
+    with pytest.raises(TeacherError, match="'threads'"):
+        TeacherConfig(vec="threads")
+    with pytest.raises(TeacherError, match="multiple of batch_size"):
+        TeacherConfig(n_steps=100, n_envs=1, batch_size=64)
+
+
+def test_shipped_checkpoint_acts():
+    from pathlib import Path
+
+    shipped = Path(__file__).resolve().parents[2] / "models" / "teacher"
+    teacher = make_policy(f"ppo:{shipped}")
+    assert teacher.normaliser.mean.shape == (40,)
+    action = teacher.act(_observations(1)[0])
+    assert action.shape == (8,) and np.all(np.isfinite(action)) and np.all(np.abs(action) <= 1.0)

@@ -1,0 +1,188 @@
+"""Demo store (zarr v3): what ``collect`` writes and the student / DDG stages read.
+
+Layout (names are a contract):
+    data/depth   uint16  [N, 96, 128]  policy resolution, mm, 0 = no data (after crop_resize, episode window)
+    data/state   float32 [N, 8]        7 joint angles (rad) + gripper opening (m)
+    data/action  float32 [N, 8]        env action: 7 deltas in [-1, 1] before the scale s, gripper -1/+1
+    data/rgb     uint8   [N, 96, 128, 3]  optional, same crop and resize as depth
+    meta/episode_ends       int64   [E]     cumulative end index of each stored (successful) episode
+    meta/kind               str     [E]     object kind
+    meta/seed               int64   [E]
+    meta/crop_window        int32   [E, 2]  (top, left) in the 848x480 stream
+    meta/camera_K           float64 [E, 3, 3]
+    meta/camera_extrinsics  float64 [E, 4, 4]  world-from-camera, OpenCV axes
+    meta/randomisation      str     [E]     JSON of the episode's draws (hil_sim.world.Episode)
+    attrs: depth_spec, action_scale, control_rate_hz, depth_scale (0.001), attempted, succeeded, failed,
+           teacher, seed
+Episodes are appended whole: data arrays first, then the per-episode meta, then ``episode_ends`` last, so
+an interrupted write is cut back to the last complete episode on the next open.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import zarr
+from zarr.codecs import BloscCodec
+
+from runtime.preprocess import DepthSpec
+
+DEPTH_SCALE = 0.001
+_CHUNK_STEPS = 512
+_META = {"kind": (str, ()), "seed": (np.int64, ()), "crop_window": (np.int32, (2,)),
+         "camera_K": (np.float64, (3, 3)), "camera_extrinsics": (np.float64, (4, 4)),
+         "randomisation": (str, ())}
+
+
+class DatasetError(OSError):
+    """A demo store that cannot be created, opened or appended to."""
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    """One successful episode ready to append (arrays stacked over its steps)."""
+
+    depth: np.ndarray
+    state: np.ndarray
+    action: np.ndarray
+    kind: str
+    seed: int
+    crop_window: tuple[int, int]
+    camera_K: np.ndarray
+    camera_extrinsics: np.ndarray
+    randomisation: dict
+    rgb: np.ndarray | None = None
+
+
+class DemoStore:
+    """Append-only episode store; ``DemoStore.open(path)`` to read, ``DemoStore.create`` to write."""
+
+    def __init__(self, root: zarr.Group) -> None:
+        self.root = root
+
+    # --- opening ------------------------------------------------------------------------------------
+    @classmethod
+    def open(cls, path: str | Path, mode: str = "r") -> DemoStore:
+        path = Path(path)
+        if not (path / "zarr.json").is_file():
+            raise DatasetError(f"no demo store at {str(path)!r}")
+        try:
+            store = cls(zarr.open_group(str(path), mode=mode))
+            store.root["meta/episode_ends"]
+        except (KeyError, ValueError, OSError) as exc:
+            raise DatasetError(f"{str(path)!r} is not a demo store: {exc}") from None
+        if mode != "r":
+            store._truncate_partial()
+        return store
+
+    @classmethod
+    def create(cls, path: str | Path, *, spec: DepthSpec, action_scale: float, control_rate_hz: float,
+               rgb: bool = False, attrs: dict | None = None) -> DemoStore:
+        """A new empty store, or the existing one at ``path`` reopened for appending (resume)."""
+        path = Path(path)
+        if (path / "zarr.json").is_file():
+            return cls.open(path, mode="a")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            root = zarr.open_group(str(path), mode="w")
+        except OSError as exc:
+            raise DatasetError(f"cannot write a demo store at {str(path)!r}: {exc.strerror or exc}") from None
+        h, w = spec.out_height, spec.out_width
+        arrays = {"data/depth": ((h, w), np.uint16), "data/state": ((8,), np.float32),
+                  "data/action": ((8,), np.float32)}
+        if rgb:
+            arrays["data/rgb"] = ((h, w, 3), np.uint8)
+        for name, (shape, dtype) in arrays.items():
+            root.create_array(name, shape=(0, *shape), chunks=(_CHUNK_STEPS, *shape), dtype=dtype,
+                              compressors=BloscCodec(cname="zstd", clevel=5, shuffle="bitshuffle"))
+        root.create_array("meta/episode_ends", shape=(0,), chunks=(4096,), dtype=np.int64)
+        for name, (dtype, shape) in _META.items():
+            root.create_array(f"meta/{name}", shape=(0, *shape), chunks=(4096, *shape), dtype=dtype)
+        root.attrs.update({"depth_spec": spec.to_dict(), "action_scale": action_scale,
+                           "control_rate_hz": control_rate_hz, "depth_scale": DEPTH_SCALE,
+                           "attempted": 0, "succeeded": 0, "failed": 0, **(attrs or {})})
+        return cls(root)
+
+    def _truncate_partial(self) -> None:
+        """Cut arrays back to the last complete episode (a write interrupted half way)."""
+        n_ep = len(self.episode_ends)
+        n = int(self.episode_ends[-1]) if n_ep else 0
+        for arr in self._data_arrays().values():
+            if arr.shape[0] != n:
+                arr.resize((n, *arr.shape[1:]))
+        for name in _META:
+            arr = self.root[f"meta/{name}"]
+            if arr.shape[0] != n_ep:
+                arr.resize((n_ep, *arr.shape[1:]))
+
+    # --- writing ------------------------------------------------------------------------------------
+    def append(self, ep: EpisodeRecord) -> None:
+        steps = len(ep.action)
+        arrays = {"depth": ep.depth, "state": ep.state, "action": ep.action}
+        if "rgb" in self._data_arrays():
+            if ep.rgb is None:
+                raise DatasetError("this store keeps RGB but the episode has none")
+            arrays["rgb"] = ep.rgb
+        for name, value in arrays.items():
+            if len(value) != steps:
+                raise DatasetError(f"episode {name} has {len(value)} steps, action has {steps}")
+            self.root[f"data/{name}"].append(np.asarray(value), axis=0)
+        meta = {"kind": np.array([ep.kind]), "seed": [ep.seed], "crop_window": [ep.crop_window],
+                "camera_K": [ep.camera_K], "camera_extrinsics": [ep.camera_extrinsics],
+                "randomisation": np.array([json.dumps(ep.randomisation)])}
+        for name, value in meta.items():
+            dtype = _META[name][0]
+            self.root[f"meta/{name}"].append(value if dtype is str else np.asarray(value, dtype), axis=0)
+        ends = self.root["meta/episode_ends"]
+        end = (int(ends[-1]) if ends.shape[0] else 0) + steps
+        ends.append(np.array([end], np.int64))
+
+    def count(self, *, success: bool) -> None:
+        """Record one attempt in the store's counters."""
+        attrs = self.root.attrs
+        attrs.update({"attempted": int(attrs["attempted"]) + 1, "succeeded": len(self.episode_ends),
+                      "failed": int(attrs["failed"]) + (not success)})
+
+    # --- reading ------------------------------------------------------------------------------------
+    @property
+    def episode_ends(self) -> np.ndarray:
+        return self.root["meta/episode_ends"][:]
+
+    @property
+    def n_episodes(self) -> int:
+        return int(self.root["meta/episode_ends"].shape[0])
+
+    @property
+    def n_steps(self) -> int:
+        ends = self.episode_ends
+        return int(ends[-1]) if len(ends) else 0
+
+    @property
+    def attrs(self) -> dict:
+        return dict(self.root.attrs)
+
+    @property
+    def depth_spec(self) -> DepthSpec:
+        return DepthSpec.from_dict(self.root.attrs["depth_spec"])
+
+    def episode_slice(self, i: int) -> slice:
+        ends = self.episode_ends
+        if not -len(ends) <= i < len(ends):
+            raise IndexError(f"episode {i} out of range (store has {len(ends)})")
+        i %= len(ends)
+        return slice(int(ends[i - 1]) if i else 0, int(ends[i]))
+
+    def episode(self, i: int) -> dict[str, np.ndarray]:
+        """All per-step arrays of episode ``i`` plus its meta (randomisation decoded)."""
+        sl = self.episode_slice(i)
+        out: dict = {name: arr[sl] for name, arr in self._data_arrays().items()}
+        for name in _META:
+            out[name] = self.root[f"meta/{name}"][i]
+        out["kind"], out["randomisation"] = str(out["kind"]), json.loads(str(out["randomisation"]))
+        return out
+
+    def _data_arrays(self) -> dict[str, zarr.Array]:
+        return {name: arr for name, arr in self.root["data"].arrays()}

@@ -1,0 +1,97 @@
+"""Training pairs (x0, c) from real captures, with depth augmentations done once up front.
+
+Each frame yields ``crops`` random windows (size jittered around the policy's share of the stream) and a
+depth scale jitter (the real captures sit at 0.3-0.7 m, the simulated table at ~0.9 m). Flips are applied
+on the fly in training. The bank keeps the crop in sensor units (uint16 mm) and c = the prior of the
+temporally fused crop (float16); ``training_arrays`` gives x0 = ``normalise(crop)`` (holes -1, valid
+depth in [0, 1]). A bank is a plain .npz, so it travels to another machine without the raw data.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from runtime.preprocess import crop_resize, normalise
+
+from .data import POLICY_SPEC, RealFrame, crop_spec
+from .prior import DepthPrior, temporal_fuse
+
+
+@dataclass(frozen=True)
+class BankConfig:
+    crops: int = 48
+    """Random crops per real frame."""
+    scale_range: tuple[float, float] = (0.45, 0.8)
+    """Crop height as a share of the stream's rows (the policy's own share is 0.625)."""
+    depth_jitter: tuple[float, float] = (0.85, 1.8)
+    """Multiplicative depth scale jitter, log-uniform."""
+    seed: int = 0
+
+
+def fused_frames(frames: list[RealFrame]) -> dict[str, np.ndarray]:
+    """Frame name -> depth with holes temporally filled from its sequence neighbours (itself if alone)."""
+    by_seq: dict[str, list[RealFrame]] = defaultdict(list)
+    for f in frames:
+        by_seq[f.sequence].append(f)
+    out = {}
+    for seq in by_seq.values():
+        seq.sort(key=lambda f: f.index)
+        fused = temporal_fuse(np.stack([f.depth_mm for f in seq])) if len(seq) > 1 else [seq[0].depth_mm]
+        out.update({f.name: d for f, d in zip(seq, fused, strict=True)})
+    return out
+
+
+def build_bank(frames: list[RealFrame], cfg: BankConfig = BankConfig()) -> dict[str, np.ndarray]:
+    """{"depth_mm": uint16 [N, H, W], "c": float16 [N, H, W], "frame": int [N], "names": str [F]}."""
+    rng = np.random.default_rng(cfg.seed)
+    fused = fused_frames(frames)
+    prior = DepthPrior(POLICY_SPEC)
+    crops, c, idx = [], [], []
+    for i, f in enumerate(tqdm(frames, desc="crop bank", leave=False)):
+        for _ in range(cfg.crops):
+            s = crop_spec(*f.depth_mm.shape, scale=rng.uniform(*cfg.scale_range))
+            win = (int(rng.integers(0, s.stream_height - s.crop_height + 1)),
+                   int(rng.integers(0, s.stream_width - s.crop_width + 1)))
+            k = np.exp(rng.uniform(*np.log(cfg.depth_jitter)))
+            raw, fus = (_scaled(crop_resize(d, s, win), k) for d in (f.depth_mm, fused[f.name]))
+            if (raw > 0).mean() < 0.2:  # a window that is mostly hole teaches nothing about geometry
+                continue
+            crops.append(raw)
+            c.append(prior(fus).astype(np.float16))
+            idx.append(i)
+    return {"depth_mm": np.stack(crops), "c": np.stack(c), "frame": np.array(idx),
+            "names": np.array([f.name for f in frames])}
+
+
+def training_arrays(bank: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(x0, c) float32 [N, H, W] on the generator's scale."""
+    x0 = np.stack([normalise(d, 0.001, POLICY_SPEC) for d in bank["depth_mm"]])
+    return x0, bank["c"].astype(np.float32)
+
+
+def concat_banks(banks: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """One bank from several (e.g. D4xx crops + other-sensor crops), frame indices kept distinct."""
+    offsets = np.cumsum([0] + [len(b["names"]) for b in banks[:-1]])
+    return {"depth_mm": np.concatenate([b["depth_mm"] for b in banks]),
+            "c": np.concatenate([b["c"] for b in banks]),
+            "frame": np.concatenate([b["frame"] + o for b, o in zip(banks, offsets, strict=True)]),
+            "names": np.concatenate([b["names"] for b in banks])}
+
+
+def save_bank(bank: dict[str, np.ndarray], path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **bank)
+
+
+def load_bank(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path) as z:
+        return {k: z[k] for k in z.files}
+
+
+def _scaled(depth_mm: np.ndarray, k: float) -> np.ndarray:
+    return np.where(depth_mm > 0, np.clip(np.rint(depth_mm * k), 1, 65535), 0).astype(np.uint16)

@@ -1,0 +1,131 @@
+"""Depth sources, one registry for every place that picks one (``trainer evaluate --sensor``, the student's
+loader, the realism metrics). Each source is a plain function: uint16 mm policy-resolution depth [H, W] + a
+numpy Generator -> uint16 mm depth [H, W] (0 = hole).
+
+- ``gt``: the clean depth, unchanged.
+- ``randnoise``: procedural noise in the style of DextrAH-G's depth augmentation: depth-dependent Gaussian
+  noise, random pixel dropout, holes along depth edges and a few random blobs.
+- ``inpaint``: OpenCV Navier-Stokes inpainting of the holes (DexGraspNet 2.0's deploy-time restoration
+  baseline;
+  applied to real depth).
+- ``ddg_nograft`` / ``ddg``: the Diffusion Depth Generator without / with Noise Grafting (needs a model).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+DepthSource = Callable[[np.ndarray, np.random.Generator], np.ndarray]
+
+DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "ddg"
+
+
+class UnknownSourceError(ValueError):
+    """A depth-source name that is not in the registry."""
+
+
+@dataclass(frozen=True)
+class RandNoiseConfig:
+    sigma_mm: float = 0.5
+    """Gaussian noise floor (mm)."""
+    sigma_quad_mm: float = 1.5
+    """Extra noise at 1 m; stereo depth error grows with depth squared."""
+    dropout_max: float = 0.02
+    """Per-frame pixel dropout probability, drawn from U(0, dropout_max)."""
+    edge_grad_mm: float = 20.0
+    """A depth jump above this (mm per pixel) counts as an edge."""
+    edge_drop: float = 0.5
+    """Probability that an edge pixel becomes a hole."""
+    blobs_mean: float = 2.0
+    """Mean number (Poisson) of elliptical holes of 2-6 px radius."""
+
+
+def gt(depth_mm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    return depth_mm.copy()
+
+
+def randnoise(depth_mm: np.ndarray, rng: np.random.Generator, cfg: RandNoiseConfig = RandNoiseConfig()
+              ) -> np.ndarray:
+    z = depth_mm.astype(np.float32)
+    sigma = cfg.sigma_mm + cfg.sigma_quad_mm * (z / 1000.0) ** 2
+    noisy = np.clip(np.rint(z + rng.standard_normal(z.shape, np.float32) * sigma), 1, 65535)
+    holes = (depth_mm == 0) | (rng.random(z.shape) < rng.uniform(0, cfg.dropout_max))
+    holes |= (_edge_map(depth_mm, cfg.edge_grad_mm) & (rng.random(z.shape) < cfg.edge_drop))
+    for _ in range(rng.poisson(cfg.blobs_mean)):
+        centre = (int(rng.integers(0, z.shape[1])), int(rng.integers(0, z.shape[0])))
+        axes = (int(rng.integers(2, 7)), int(rng.integers(2, 7)))
+        blob = np.zeros(z.shape, np.uint8)
+        cv2.ellipse(blob, centre, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
+        holes |= blob.astype(bool)
+    return np.where(holes, 0, noisy).astype(np.uint16)
+
+
+def inpaint(depth_mm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    holes = (depth_mm == 0).astype(np.uint8)
+    if not holes.any():
+        return depth_mm.copy()
+    return cv2.inpaint(depth_mm, holes, 3, cv2.INPAINT_NS)
+
+
+class DDGSource:
+    """One frame at a time through the generator; the frame's noise comes from ``rng``."""
+
+    def __init__(self, model: str | Path = DEFAULT_MODEL, steps: int = 10, grafted: bool = True) -> None:
+        from .sample import Generator
+
+        self.generator, self.grafted = Generator(model, steps=steps), grafted
+
+    def __call__(self, depth_mm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        index = np.array([rng.integers(0, 2**62)])
+        ddg, nograft = self.generator(depth_mm[None], index)
+        return (ddg if self.grafted else nograft)[0]
+
+
+SOURCES: dict[str, Callable[..., DepthSource]] = {
+    "gt": lambda **_: gt,
+    "randnoise": lambda **_: randnoise,
+    "inpaint": lambda **_: inpaint,
+    "ddg_nograft": lambda model=DEFAULT_MODEL, steps=10: DDGSource(model, steps, grafted=False),
+    "ddg": lambda model=DEFAULT_MODEL, steps=10: DDGSource(model, steps, grafted=True),
+}
+
+
+def get_source(name: str, model: str | Path | None = None, steps: int = 10) -> DepthSource:
+    """The depth source called ``name``; ``model``/``steps`` matter for the DDG sources only."""
+    if name not in SOURCES:
+        raise UnknownSourceError(f"unknown depth source {name!r}; choose one of {sorted(SOURCES)}")
+    return SOURCES[name](model=model or DEFAULT_MODEL, steps=steps)
+
+
+def _edge_map(depth_mm: np.ndarray, grad_mm: float) -> np.ndarray:
+    z = depth_mm.astype(np.float32)
+    gy, gx = np.abs(np.diff(z, axis=0, prepend=z[:1])), np.abs(np.diff(z, axis=1, prepend=z[:, :1]))
+    return np.maximum(gx, gy) > grad_mm
+
+
+
+
+def sensor_factory(name: str) -> Callable[[str], Callable[[np.ndarray], np.ndarray]]:
+    """Adapter to ``trainer.sim.sensors``' factory shape: ARG (a DDG model dir, '' = shipped) -> (depth
+    -> depth),
+    with a seeded generator of its own."""
+    def factory(arg: str) -> Callable[[np.ndarray], np.ndarray]:
+        source, rng = get_source(name, model=arg or None), np.random.default_rng(0)
+        return lambda depth: source(depth, rng)
+    return factory
+
+
+def _register() -> None:
+    from trainer.sim import sensors
+
+    for name in SOURCES:
+        if name != "gt":  # "clean" is the simulator's own name for it
+            sensors.register(name, sensor_factory(name))
+
+
+_register()

@@ -1,0 +1,114 @@
+"""The conditional U-Net (eps_theta(d_k ⊕ c, k), paper eq. 8), its noise schedule and the model directory.
+
+A model directory holds ``config.json`` (this module's configs + the DepthSpec), ``unet.safetensors`` (EMA
+weights) and ``unet.onnx`` (the same network for onnxruntime). Nothing is pickled.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+from diffusers import DDIMScheduler, DDPMScheduler, UNet2DModel
+
+from runtime.preprocess import DepthSpec
+
+from .data import POLICY_SPEC
+
+
+class ModelDirError(ValueError):
+    """A model directory that is missing files or has an unreadable config."""
+
+
+@dataclass(frozen=True)
+class UNetConfig:
+    channels: tuple[int, ...] = (16, 32, 64)
+    """U-Net widths per level (encoder-decoder with skips); compact so CPU generation stays fast."""
+    layers_per_block: int = 1
+    """ResNet blocks per level."""
+    mid_attention: bool = True
+    """Self-attention in the middle (lowest-resolution) block, for long-range hole patterns."""
+    train_timesteps: int = 1000
+    """DDPM diffusion steps used in training."""
+    beta_schedule: str = "squaredcos_cap_v2"
+    """diffusers beta schedule name."""
+
+    def __post_init__(self) -> None:
+        if not self.channels or any(c % 8 for c in self.channels):
+            raise ModelDirError(f"channels must be multiples of 8 (GroupNorm groups), got {self.channels}")
+
+
+def build_unet(cfg: UNetConfig, spec: DepthSpec = POLICY_SPEC) -> UNet2DModel:
+    n = len(cfg.channels)
+    return UNet2DModel(
+        sample_size=(spec.out_height, spec.out_width), in_channels=2, out_channels=1,
+        block_out_channels=tuple(cfg.channels), layers_per_block=cfg.layers_per_block,
+        down_block_types=("DownBlock2D",) * n, up_block_types=("UpBlock2D",) * n,
+        add_attention=cfg.mid_attention, norm_num_groups=8, attention_head_dim=8)
+
+
+def ddpm_scheduler(cfg: UNetConfig) -> DDPMScheduler:
+    # clip_sample keeps the x0 estimate in the data range [-1, 1] (holes at -1, valid depth in [0, 1]).
+    return DDPMScheduler(num_train_timesteps=cfg.train_timesteps, beta_schedule=cfg.beta_schedule,
+                         prediction_type="epsilon", clip_sample=True, clip_sample_range=1.0)
+
+
+def ddim_scheduler(cfg: UNetConfig, steps: int) -> DDIMScheduler:
+    if not 1 <= steps <= cfg.train_timesteps:
+        raise ValueError(f"DDIM steps must be in 1..{cfg.train_timesteps}, got {steps}")
+    s = DDIMScheduler.from_config(ddpm_scheduler(cfg).config, timestep_spacing="trailing")
+    s.set_timesteps(steps)
+    return s
+
+
+class EpsNet(torch.nn.Module):
+    """(x [B, 2, H, W], t [B] int64) -> eps [B, 1, H, W]: the plain-tensor face exported to ONNX."""
+
+    def __init__(self, unet: UNet2DModel) -> None:
+        super().__init__()
+        self.unet = unet
+
+    def forward(self, x: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+        return self.unet(x, t).sample
+
+
+def save_model(out: Path, unet: UNet2DModel, cfg: UNetConfig, spec: DepthSpec, extra: dict) -> None:
+    from safetensors.torch import save_file
+
+    out.mkdir(parents=True, exist_ok=True)
+    save_file({k: v.contiguous() for k, v in unet.state_dict().items()}, out / "unet.safetensors")
+    config = {"unet": asdict(cfg), "depth_spec": spec.to_dict(), **extra}
+    (out / "config.json").write_text(json.dumps(config, indent=1))
+    export_onnx(unet, spec, out / "unet.onnx")
+
+
+def load_config(model_dir: str | Path) -> dict:
+    f = Path(model_dir) / "config.json"
+    if not f.is_file():
+        raise ModelDirError(f"{model_dir}: no config.json (not a DDG model directory)")
+    raw = json.loads(f.read_text())
+    raw["unet"] = UNetConfig(**{**raw["unet"], "channels": tuple(raw["unet"]["channels"])})
+    raw["depth_spec"] = DepthSpec.from_dict(raw["depth_spec"])
+    return raw
+
+
+def load_unet(model_dir: str | Path) -> tuple[UNet2DModel, dict]:
+    from safetensors.torch import load_file
+
+    cfg = load_config(model_dir)
+    weights = Path(model_dir) / "unet.safetensors"
+    if not weights.is_file():
+        raise ModelDirError(f"{model_dir}: no unet.safetensors")
+    unet = build_unet(cfg["unet"], cfg["depth_spec"])
+    unet.load_state_dict(load_file(weights))
+    return unet.eval(), cfg
+
+
+def export_onnx(unet: UNet2DModel, spec: DepthSpec, path: Path) -> None:
+    x = torch.zeros(2, 2, spec.out_height, spec.out_width)
+    t = torch.full((2,), 10, dtype=torch.int64)
+    torch.onnx.export(EpsNet(unet).eval(), (x, t), str(path), input_names=["x", "t"], output_names=["eps"],
+                      dynamic_axes={"x": {0: "batch"}, "t": {0: "batch"}, "eps": {0: "batch"}},
+                      opset_version=17, dynamo=False)

@@ -1,0 +1,184 @@
+"""DDPM training of the conditional U-Net on real crops (paper eq. 8), with EMA, checkpoints and resume.
+
+Batches and noise are drawn from generators seeded by (seed, step), so a resumed run continues exactly as an
+uninterrupted one would.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from .bank import BankConfig, build_bank, concat_banks, load_bank, save_bank, training_arrays
+from .data import POLICY_SPEC, load_real_dir, split
+from .graft import HOLE_THRESHOLD
+from .model import UNetConfig, build_unet, ddpm_scheduler, save_model
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    real: str = "../shared/data/real_depth"
+    """Directory of real captures (.npz with depth_m, + MANIFEST.json)."""
+    out: str = "runs/ddg/model"
+    """Model directory written at the end (config.json, unet.safetensors, unet.onnx, loss.png, frames.txt)."""
+    run: str = "runs/ddg/fit"
+    """Run directory: checkpoint (resumed from when present), crop bank, loss curve."""
+    bank: tuple[str, ...] = ()
+    """Prebuilt crop bank(s) .npz to train on (concatenated) instead of building one from --real."""
+    sensors: str = "d4xx"
+    """Which real frames to learn from: d4xx (RealSense D4xx only) or all (every active sensor)."""
+    crops: int = 48
+    """Random crops per real frame in the bank."""
+    steps: int = 6000
+    """Optimiser steps."""
+    batch: int = 16
+    """Crops per step."""
+    lr: float = 3e-4
+    """AdamW learning rate (cosine decay to 10%)."""
+    ema_decay: float = 0.999
+    """EMA of the weights; the EMA copy is the shipped model."""
+    ckpt_every: int = 250
+    """Steps between checkpoints."""
+    max_minutes: float = 0.0
+    """Stop (and export) after this much wall time; 0 = no limit. Keeps a shared-CPU run inside its budget."""
+    seed: int = 0
+    """Seed for the bank, batches and noise."""
+    device: str = "cpu"
+    """torch device."""
+    threads: int = 2
+    """torch CPU threads."""
+    patch: tuple[int, ...] = (48, 64)
+    """Train on random patches of this size (rows cols; 0 0 = whole crops): the net is fully convolutional,
+    so a quarter-size patch gives 4x the steps on a CPU budget; generation runs on whole frames."""
+    channels: tuple[int, ...] = UNetConfig.channels
+    """U-Net widths per level."""
+
+
+def fit(cfg: FitConfig) -> Path:
+    torch.set_num_threads(cfg.threads)
+    run, out = Path(cfg.run), Path(cfg.out)
+    run.mkdir(parents=True, exist_ok=True)
+    bank, names = _bank(cfg, run)
+    ucfg = UNetConfig(channels=cfg.channels)
+    unet = build_unet(ucfg).to(cfg.device)
+    ema = copy.deepcopy(unet).requires_grad_(False)
+    opt = torch.optim.AdamW(unet.parameters(), lr=cfg.lr, weight_decay=1e-4)
+    # float(): a numpy scalar in the scheduler state would make the checkpoint unloadable with weights_only
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        opt, lambda s: float(0.1 + 0.45 * (1 + np.cos(np.pi * s / cfg.steps))))
+    state = _resume(run / "ckpt.pt", unet, ema, opt, sched)
+    step, losses, elapsed = state["step"], state["losses"], state["elapsed"]
+    noise_sched = ddpm_scheduler(ucfg)
+    x0_all, c_all = (torch.from_numpy(a).to(cfg.device) for a in training_arrays(bank))
+    t0 = time.monotonic() - elapsed
+    bar = tqdm(range(step, cfg.steps), initial=step, total=cfg.steps, desc="ddg fit")
+    for step in bar:
+        loss = train_step(unet, opt, noise_sched, x0_all, c_all, cfg, step)
+        sched.step()
+        _ema_update(ema, unet, cfg.ema_decay)
+        losses.append(loss)
+        bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
+        done = step + 1 == cfg.steps or (cfg.max_minutes and time.monotonic() - t0 > 60 * cfg.max_minutes)
+        if (step + 1) % cfg.ckpt_every == 0 or done:
+            _checkpoint(run, unet, ema, opt, sched, step + 1, losses, time.monotonic() - t0)
+        if done:
+            break
+    minutes = (time.monotonic() - t0) / 60
+    extra = {"hole_threshold": HOLE_THRESHOLD, "train": {**asdict(cfg), "steps_done": len(losses),
+             "train_minutes": round(minutes, 2), "n_crops": int(len(bank["c"]))}, "frames": names}
+    save_model(out, ema.cpu(), ucfg, POLICY_SPEC, extra)
+    plot_losses(losses, out / "loss.png")
+    (out / "frames.txt").write_text("\n".join(names) + "\n")
+    return out
+
+
+def train_step(unet: torch.nn.Module, opt: torch.optim.Optimizer, noise_sched, x0_all: torch.Tensor,
+               c_all: torch.Tensor, cfg: FitConfig, step: int) -> float:
+    """One eq.-8 step: eps ~ N(0, I), k ~ U{0..K-1}, minimise ||eps - eps_theta(d_k ⊕ c, k)||^2."""
+    g = torch.Generator().manual_seed(cfg.seed * 1_000_003 + step)
+    idx = torch.randint(0, len(x0_all), (cfg.batch,), generator=g)
+    x0, c = _patches(x0_all[idx, None], c_all[idx, None], cfg.patch, g)
+    flip = torch.rand(cfg.batch, generator=g) < 0.5  # horizontal flip, the one mirror a camera allows
+    x0, c = torch.where(flip[:, None, None, None], x0.flip(-1), x0), torch.where(
+        flip[:, None, None, None], c.flip(-1), c)
+    eps = torch.randn(x0.shape, generator=g).to(x0.device)
+    k = torch.randint(0, noise_sched.config.num_train_timesteps, (cfg.batch,), generator=g).to(x0.device)
+    xk = noise_sched.add_noise(x0, eps, k)
+    loss = torch.nn.functional.mse_loss(unet(torch.cat([xk, c], 1), k).sample, eps)
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(unet.parameters(), 1.0)
+    opt.step()
+    return loss.item()
+
+
+def _patches(x0: torch.Tensor, c: torch.Tensor, patch: tuple[int, ...], g: torch.Generator
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+    """One random window (the same for the whole batch, so it stays one tensor) of size ``patch``."""
+    h, w = x0.shape[-2:]
+    ph, pw = (patch[0] or h, patch[1] or w) if patch else (h, w)
+    top = int(torch.randint(0, h - ph + 1, (1,), generator=g))
+    left = int(torch.randint(0, w - pw + 1, (1,), generator=g))
+    return x0[..., top:top + ph, left:left + pw], c[..., top:top + ph, left:left + pw]
+
+
+def plot_losses(losses: list[float], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(losses, alpha=0.3, lw=0.5, label="step")
+    w = max(1, len(losses) // 50)
+    ax.plot(np.convolve(losses, np.ones(w) / w, mode="valid"), label=f"mean of {w}")
+    ax.set(xlabel="step", ylabel="eps MSE (eq. 8)", yscale="log", title="DDG training loss")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _bank(cfg: FitConfig, run: Path) -> tuple[dict[str, np.ndarray], list[str]]:
+    if cfg.bank:
+        bank = concat_banks([load_bank(Path(b)) for b in cfg.bank])
+    else:
+        cached = run / f"bank_{cfg.sensors}_{cfg.crops}_{cfg.seed}.npz"
+        if cached.exists():
+            bank = load_bank(cached)
+        else:
+            train, _ = split(load_real_dir(cfg.real, cfg.sensors))
+            bank = build_bank(train, BankConfig(crops=cfg.crops, seed=cfg.seed))
+            save_bank(bank, cached)
+    return bank, [str(n) for n in bank["names"]]
+
+
+def _ema_update(ema: torch.nn.Module, model: torch.nn.Module, decay: float) -> None:
+    with torch.no_grad():
+        torch._foreach_lerp_(list(ema.parameters()), list(model.parameters()), 1.0 - decay)
+
+
+def _checkpoint(run: Path, unet, ema, opt, sched, step: int, losses: list[float], elapsed: float) -> None:
+    tmp = run / "ckpt.pt.tmp"
+    torch.save({"unet": unet.state_dict(), "ema": ema.state_dict(), "opt": opt.state_dict(),
+                "sched": sched.state_dict(), "step": step, "losses": losses, "elapsed": elapsed}, tmp)
+    os.replace(tmp, run / "ckpt.pt")  # atomic: a kill mid-save never leaves a broken checkpoint
+    plot_losses(losses, run / "loss.png")
+
+
+def _resume(path: Path, unet, ema, opt, sched) -> dict:
+    if not path.exists():
+        return {"step": 0, "losses": [], "elapsed": 0.0}
+    ck = torch.load(path, map_location="cpu", weights_only=True)
+    unet.load_state_dict(ck["unet"])
+    ema.load_state_dict(ck["ema"])
+    opt.load_state_dict(ck["opt"])
+    sched.load_state_dict(ck["sched"])
+    return ck

@@ -1,0 +1,81 @@
+"""What ``collect`` and ``evaluate`` run in the simulated world: ``make_policy(spec)``.
+
+A policy has ``reset(env_info)`` (the dict ``GraspEnv.reset`` returns) and ``act(obs) -> np.ndarray(8)``
+(env action: 7 joint deltas in [-1, 1] before the scale s, gripper -1/+1). ``obs`` is an ``Observation``
+holding all three views of the world, so a privileged teacher and a depth student share one loop.
+
+Specs: ``scripted`` | ``ppo:CHECKPOINT`` | ``student:ONNX``. Other engineers' modules provide
+``trainer.teacher.ppo.load(path)`` and ``trainer.student.onnx_policy.load(path)``; they are imported only
+when asked for. Add a kind by adding one entry to ``LOADERS``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+
+class PolicyError(ValueError):
+    """A policy spec that names no known kind, or whose loader module is missing."""
+
+
+@dataclass(frozen=True)
+class Observation:
+    privileged: np.ndarray
+    """float32 [40], layout in ``trainer.sim.env``."""
+    depth: np.ndarray | None
+    """uint16 [96, 128] mm at the policy resolution (0 = no data), after the sensor model; None when the
+    env does not render depth."""
+    state: np.ndarray
+    """float32 [8]: 7 joint angles (rad) + gripper opening (m)."""
+
+
+class Policy(Protocol):
+    def reset(self, env_info: dict) -> None: ...
+
+    def act(self, obs: Observation) -> np.ndarray: ...
+
+
+def _scripted(_: str) -> Policy:
+    from trainer.teacher.scripted import ScriptedExpert
+
+    return ScriptedExpert()
+
+
+def _lazy(module: str, kind: str) -> Callable[[str], Policy]:
+    def load(path: str) -> Policy:
+        if not path:
+            raise PolicyError(f"policy spec {kind}: needs a path, e.g. {kind}:PATH")
+        try:
+            mod = importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            raise PolicyError(f"policy kind {kind!r} needs {module}, not available ({exc})") from None
+        return mod.load(path)
+
+    return load
+
+
+LOADERS: dict[str, Callable[[str], Policy]] = {
+    "scripted": _scripted,
+    "ppo": _lazy("trainer.teacher.ppo", "ppo"),
+    "student": _lazy("trainer.student.onnx_policy", "student"),
+}
+
+NEEDS_DEPTH = {"scripted": False, "ppo": False, "student": True}
+"""Whether the env must render depth for this kind (privileged teachers run much faster without)."""
+
+
+def parse(spec: str) -> tuple[str, str]:
+    kind, _, arg = spec.partition(":")
+    if kind not in LOADERS:
+        raise PolicyError(f"unknown policy {spec!r}; expected one of: scripted, ppo:CKPT, student:ONNX")
+    return kind, arg
+
+
+def make_policy(spec: str) -> Policy:
+    kind, arg = parse(spec)
+    return LOADERS[kind](arg)

@@ -1,0 +1,91 @@
+"""One closed-loop episode of a policy in ``GraspEnv``, and many of them on a process pool.
+
+Each worker process builds its env and policy once (``spawn`` start: MuJoCo's GL context must not be
+forked), then runs ``Job``s; results come back in submission order so stores stay deterministic.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from trainer.policies import Observation, make_policy
+from trainer.sim.env import EnvConfig, GraspEnv
+from trainer.sim.sensors import Sensor, make_sensor
+
+
+@dataclass(frozen=True)
+class Job:
+    seed: int
+    kind: str
+
+
+@dataclass
+class Rollout:
+    seed: int
+    kind: str
+    success: bool
+    steps: int
+    episode: dict
+    camera_K: np.ndarray
+    camera_extrinsics: np.ndarray
+    frames: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    """When recording: per step ``depth``, ``state``, ``action`` (and ``rgb``), observed before acting."""
+
+
+def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor: Sensor | None = None,
+                ) -> Rollout:
+    """Reset to ``job``, act until the episode ends; the sensor maps clean depth to what the policy sees."""
+    _, info = env.reset(seed=job.seed, options={"kind": job.kind})
+    policy.reset(info)
+    rollout = Rollout(job.seed, job.kind, False, 0, info["episode"], env.world.intr.K,
+                      env.world.camera_extrinsics())
+    if record:
+        rollout.frames = {k: [] for k in ("depth", "state", "action", *(["rgb"] if "rgb" in info else []))}
+    obs = env.observation()
+    while True:
+        depth = info.get("depth")
+        seen = sensor(depth) if sensor is not None and depth is not None else depth
+        action = np.asarray(policy.act(Observation(obs, seen, info["state"])), np.float32)
+        if record:
+            for key, value in (("depth", depth), ("state", info["state"]), ("action", action),
+                               ("rgb", info.get("rgb"))):
+                if key in rollout.frames:
+                    rollout.frames[key].append(value)
+        obs, _, terminated, truncated, info = env.step(action)
+        rollout.steps += 1
+        if terminated or truncated:
+            rollout.success = bool(info["success"])
+            return rollout
+
+
+_WORKER: dict = {}
+
+
+def _init(config: EnvConfig, policy_spec: str, record: bool, sensor_spec: str) -> None:
+    _WORKER.update(env=GraspEnv(config), policy=make_policy(policy_spec), record=record,
+                   sensor=make_sensor(sensor_spec))
+
+
+def _work(job: Job) -> Rollout:
+    return run_episode(_WORKER["env"], _WORKER["policy"], job, record=_WORKER["record"],
+                       sensor=_WORKER["sensor"])
+
+
+def rollouts(config: EnvConfig, policy_spec: str, jobs: Iterable[Job], *, workers: int = 1,
+             record: bool = False, sensor_spec: str = "clean") -> Iterator[Rollout]:
+    """Run ``jobs`` in order; ``workers`` > 1 uses that many processes, each building its own env,
+    policy and sensor from the specs."""
+    if workers <= 1:
+        _init(config, policy_spec, record, sensor_spec)
+        try:
+            yield from map(_work, jobs)
+        finally:
+            _WORKER.pop("env").close()
+        return
+    ctx = mp.get_context("spawn")
+    with ctx.Pool(workers, initializer=_init, initargs=(config, policy_spec, record, sensor_spec)) as pool:
+        yield from pool.imap(_work, jobs)

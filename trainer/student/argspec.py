@@ -1,0 +1,46 @@
+"""argparse from frozen dataclasses: one ``--flag`` per field, the field's docstring as its help."""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import textwrap
+import typing
+
+
+def add_dataclass_args(parser: argparse.ArgumentParser, cls: type) -> None:
+    """One ``--field`` per dataclass field; the field docstring (from the class source) is the help text."""
+    docs = field_docs(cls)
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        flag = "--" + f.name.replace("_", "-")
+        default = f.default if f.default is not dataclasses.MISSING else None
+        kind = hints[f.name]
+        if typing.get_origin(kind) is tuple:
+            parser.add_argument(flag, type=int, nargs="+", default=default, help=docs.get(f.name, ""))
+        elif kind is bool:
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=default,
+                                help=docs.get(f.name, ""))
+        else:
+            parser.add_argument(flag, type=kind if kind in (int, float, str) else str, default=default,
+                                help=f"{docs.get(f.name, '')} (default {default})")
+
+
+def field_docs(cls: type) -> dict[str, str]:
+    """Attribute docstrings: the string literal right after each field in the class body."""
+    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
+    docs = {}
+    for prev, node in zip(body, body[1:], strict=False):
+        if (isinstance(prev, ast.AnnAssign) and isinstance(node, ast.Expr)
+                and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)):
+            docs[prev.target.id] = " ".join(node.value.value.split())
+    return docs
+
+
+def from_args(cls: type, args: argparse.Namespace, **extra: object) -> object:
+    names = {f.name for f in dataclasses.fields(cls)}
+    values = {k: v for k, v in vars(args).items() if k in names}
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+    return cls(**values, **extra)

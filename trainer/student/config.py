@@ -1,0 +1,63 @@
+"""Architecture and horizons of the student; stored as JSON inside every checkpoint."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, fields
+
+
+class StudentConfigError(ValueError):
+    """A student configuration that cannot build a model (bad width, horizon, dims)."""
+
+
+@dataclass(frozen=True)
+class StudentConfig:
+    """Defaults vs diffusion_policy (To=2, Ha=16, Hexec=8): we stack 3 depth frames as the paper does,
+    keep Ha=16 and Hexec=8 (1.6 s predicted, 0.8 s executed at 10 Hz)."""
+
+    width: int = 64
+    """ResNet-18 base width: stage channels are width, 2w, 4w, 8w (64 = the standard ResNet-18)."""
+    obs_horizon: int = 3
+    """Depth frames stacked as input channels, oldest first."""
+    action_horizon: int = 16
+    """Ha: actions predicted per inference."""
+    exec_horizon: int = 8
+    """Actions executed from each chunk before re-planning."""
+    state_dim: int = 8
+    action_dim: int = 8
+    state_features: int = 64
+    """Output size of the joint-state MLP."""
+    head_dims: tuple[int, ...] = (64, 128, 256)
+    """Channels of the 1-D U-Net levels over the action chunk (diffusion_policy: 256, 512, 1024)."""
+    step_features: int = 64
+    """Size of the sinusoidal diffusion-step embedding."""
+    train_timesteps: int = 100
+    """DDPM steps used in training (squared-cosine schedule, as diffusion_policy)."""
+
+    def __post_init__(self) -> None:
+        if self.width < 8 or self.width % 8:
+            raise StudentConfigError(f"width must be a positive multiple of 8, got {self.width}")
+        if not self.head_dims or any(d < 8 or d % 8 for d in self.head_dims):
+            raise StudentConfigError(f"head_dims must be multiples of 8, got {self.head_dims}")
+        if self.action_horizon % 2 ** (len(self.head_dims) - 1):
+            raise StudentConfigError(f"action_horizon {self.action_horizon} must be divisible by "
+                                     f"2**{len(self.head_dims) - 1} for a {len(self.head_dims)}-level U-Net")
+        if not (0 < self.exec_horizon <= self.action_horizon):
+            raise StudentConfigError(f"exec_horizon {self.exec_horizon} must be in 1..{self.action_horizon}")
+        for name in ("obs_horizon", "state_dim", "action_dim", "state_features", "step_features",
+                     "train_timesteps"):
+            if getattr(self, name) < 1:
+                raise StudentConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+    @classmethod
+    def from_json(cls, text: str) -> StudentConfig:
+        d = json.loads(text)
+        unknown = set(d) - {f.name for f in fields(cls)}
+        if unknown:
+            raise StudentConfigError(f"unknown student config fields {sorted(unknown)}")
+        if "head_dims" in d:
+            d["head_dims"] = tuple(d["head_dims"])
+        return cls(**d)

@@ -1,0 +1,109 @@
+"""Training samples from a demo store: (3 stacked depth frames, state, action chunk) per time step.
+
+Depth goes through ``runtime.preprocess.normalise`` (the one implementation) and is stacked with the
+FrameStack rule (an episode's first frame fills the history), so a sample equals what the runtime feeds
+the policy at that step; tests/student/test_preprocess_parity.py proves it bit for bit. Action chunks
+that run past the episode end repeat its last action (diffusion_policy pads the same way).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from runtime.preprocess import DepthSpec, normalise
+from trainer.dataset import DemoStore
+
+DEPTH_ARRAYS = {"gt": "data/depth", "randnoise": "data/depth", "ddg": "data/depth_ddg",
+                "ddg_nograft": "data/depth_ddg_nograft"}
+"""Depth source -> stored array. randnoise is procedural: applied to the GT frames at sampling time."""
+
+
+class DemoDataError(ValueError):
+    """A demo store or depth source the student cannot train on."""
+
+
+@dataclass(frozen=True)
+class Batch:
+    depth: torch.Tensor
+    """float32 [B, To, H, W], preprocessed, oldest frame first."""
+    state: torch.Tensor
+    """float32 [B, 8], raw units."""
+    action: torch.Tensor
+    """float32 [B, Ha, 8], env units (joint deltas in [-1, 1] before s, gripper -1/+1)."""
+
+
+def frame_augmenter(depth_source: str) -> Callable[[np.ndarray, np.random.Generator], np.ndarray] | None:
+    """The procedural noise for ``randnoise`` (trainer.ddg's baseline), None for stored sources."""
+    if depth_source != "randnoise":
+        return None
+    from trainer.ddg.baselines import randnoise
+    return randnoise
+
+
+class DemoDataset:
+    """All of a store's steps in memory (uint16 depth: ~25 kB per step)."""
+
+    def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int) -> None:
+        if depth_source not in DEPTH_ARRAYS:
+            raise DemoDataError(f"unknown depth source {depth_source!r}; "
+                                f"choose one of {sorted(DEPTH_ARRAYS)}")
+        store = DemoStore.open(path)
+        key = DEPTH_ARRAYS[depth_source]
+        if key not in store.root:
+            raise DemoDataError(f"{path} has no {key} for depth source {depth_source!r} "
+                                f"(run `python -m trainer ddg generate` first)")
+        self.ends = store.episode_ends
+        if len(self.ends) == 0:
+            raise DemoDataError(f"{path} holds no episodes")
+        n = int(self.ends[-1])
+        self.depth = np.asarray(store.root[key][:n])
+        self.state = np.asarray(store.root["data/state"][:n], dtype=np.float32)
+        self.action = np.asarray(store.root["data/action"][:n], dtype=np.float32)
+        attrs = store.attrs
+        self.spec = DepthSpec.from_dict(attrs["depth_spec"])
+        self.depth_scale = float(attrs["depth_scale"])
+        self.action_scale = float(attrs["action_scale"])
+        self.control_rate_hz = float(attrs["control_rate_hz"])
+        self.depth_source, self.path = depth_source, Path(path)
+        self.obs_horizon, self.action_horizon = obs_horizon, action_horizon
+        self.augment = frame_augmenter(depth_source)
+        starts = np.concatenate([[0], self.ends[:-1]])
+        steps_per_ep = np.diff(np.concatenate([[0], self.ends]))
+        self._start = np.repeat(starts, steps_per_ep)
+        self._end = np.repeat(self.ends, steps_per_ep)
+
+    def __len__(self) -> int:
+        return len(self.action)
+
+    def frame_indices(self, i: int) -> np.ndarray:
+        """Steps of the depth frames stacked at step ``i``, oldest first, clamped to the episode start."""
+        return np.maximum(np.arange(i - self.obs_horizon + 1, i + 1), self._start[i])
+
+    def action_indices(self, i: int) -> np.ndarray:
+        return np.minimum(np.arange(i, i + self.action_horizon), self._end[i] - 1)
+
+    def depth_stack(self, i: int, rng: np.random.Generator | None = None) -> np.ndarray:
+        frames = self.depth[self.frame_indices(i)]
+        if self.augment is not None:
+            rng = rng if rng is not None else np.random.default_rng()
+            frames = np.stack([self.augment(f, rng) for f in frames])
+        return np.stack([normalise(f, self.depth_scale, self.spec) for f in frames])
+
+    def batch(self, indices: np.ndarray, rng: np.random.Generator | None = None) -> Batch:
+        depth = np.stack([self.depth_stack(int(i), rng) for i in indices])
+        action = np.stack([self.action[self.action_indices(int(i))] for i in indices])
+        return Batch(torch.from_numpy(depth), torch.from_numpy(self.state[indices]), torch.from_numpy(action))
+
+    def fingerprint(self) -> dict:
+        """Identifies the training data in the policy file's metadata."""
+        h = hashlib.sha256()
+        for arr in (self.ends, self.state, self.action):
+            h.update(np.ascontiguousarray(arr).tobytes())
+        return {"demos": str(self.path.resolve()), "depth_source": self.depth_source,
+                "episodes": len(self.ends), "steps": len(self), "demos_sha256": h.hexdigest()[:16]}

@@ -1,0 +1,63 @@
+"""Noise schedules: diffusers' DDPMScheduler for training, and the ONE DDIM update used at inference.
+
+The DDIM update is written out here (not called through diffusers) so that export can unroll K steps into
+the ONNX graph with each step's timestep and coefficients baked in as constants. Its coefficients are read
+from diffusers' DDIMScheduler, which is also the reference the tests and ``export.check`` compare against.
+Schedule settings follow diffusion_policy: 100 training steps, squared-cosine betas, epsilon prediction,
+x0 clipped to [-1, 1] (actions are normalised to that range).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from diffusers import DDIMScheduler, DDPMScheduler
+
+_SCHEDULE = {"beta_schedule": "squaredcos_cap_v2", "clip_sample": True, "prediction_type": "epsilon"}
+
+
+class DdimError(ValueError):
+    """A DDIM step count the training schedule cannot provide."""
+
+
+def training_scheduler(train_timesteps: int) -> DDPMScheduler:
+    return DDPMScheduler(num_train_timesteps=train_timesteps, **_SCHEDULE)
+
+
+def reference_scheduler(train_timesteps: int, steps: int) -> DDIMScheduler:
+    """diffusers' DDIM with ``steps`` inference steps: the reference our unrolled update must match."""
+    if not 1 <= steps <= train_timesteps:
+        raise DdimError(f"DDIM steps must be in 1..{train_timesteps}, got {steps}")
+    sched = DDIMScheduler(num_train_timesteps=train_timesteps, set_alpha_to_one=True, steps_offset=0,
+                          **_SCHEDULE)
+    sched.set_timesteps(steps)
+    return sched
+
+
+@dataclass(frozen=True)
+class DdimStep:
+    timestep: int
+    sqrt_alpha: float
+    sqrt_one_minus_alpha: float
+    sqrt_alpha_prev: float
+    sqrt_one_minus_alpha_prev: float
+
+
+def ddim_plan(train_timesteps: int, steps: int) -> list[DdimStep]:
+    """Timesteps and coefficients of a deterministic (eta=0) DDIM run, in diffusers' float32 arithmetic."""
+    sched = reference_scheduler(train_timesteps, steps)
+    stride = train_timesteps // steps
+    plan = []
+    for t in sched.timesteps.tolist():
+        alpha = sched.alphas_cumprod[t]
+        alpha_prev = sched.alphas_cumprod[t - stride] if t - stride >= 0 else sched.final_alpha_cumprod
+        plan.append(DdimStep(int(t), (alpha ** 0.5).item(), ((1 - alpha) ** 0.5).item(),
+                             (alpha_prev ** 0.5).item(), ((1 - alpha_prev) ** 0.5).item()))
+    return plan
+
+
+def ddim_update(sample: torch.Tensor, eps: torch.Tensor, step: DdimStep) -> torch.Tensor:
+    """One eta=0 DDIM step x_t -> x_{t-stride} from the predicted noise."""
+    x0 = ((sample - step.sqrt_one_minus_alpha * eps) / step.sqrt_alpha).clamp(-1.0, 1.0)
+    return step.sqrt_alpha_prev * x0 + step.sqrt_one_minus_alpha_prev * eps

@@ -1,0 +1,152 @@
+"""Student network: ResNet-18 (GroupNorm) over stacked depth + MLP over joint state, fused into the
+condition of a 1-D conditional U-Net that predicts the noise added to a normalised action chunk.
+
+Why a 1-D U-Net head rather than an MLP: its temporal convolutions share weights along the chunk, which
+is what keeps diffusion_policy's action chunks smooth, and it is small at our Ha=16 (three levels, 16->8->4).
+GroupNorm instead of BatchNorm: batch statistics drift under EMA and tiny batches (diffusion_policy does
+the same); it also exports as plain ONNX ops with no running statistics to carry.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from trainer.student.config import StudentConfig
+from trainer.student.normaliser import RangeNormaliser
+
+
+def _groups(channels: int) -> int:
+    return max(1, channels // 16)
+
+
+class BasicBlock(nn.Module):
+    def __init__(self, c_in: int, c_out: int, stride: int) -> None:
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, c_out, 3, stride, 1, bias=False)
+        self.norm1 = nn.GroupNorm(_groups(c_out), c_out)
+        self.conv2 = nn.Conv2d(c_out, c_out, 3, 1, 1, bias=False)
+        self.norm2 = nn.GroupNorm(_groups(c_out), c_out)
+        self.shortcut = nn.Identity()
+        if stride != 1 or c_in != c_out:
+            self.shortcut = nn.Sequential(nn.Conv2d(c_in, c_out, 1, stride, bias=False),
+                                          nn.GroupNorm(_groups(c_out), c_out))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = torch.relu(self.norm1(self.conv1(x)))
+        return torch.relu(self.norm2(self.conv2(y)) + self.shortcut(x))
+
+
+class ResNet18(nn.Module):
+    """ResNet-18 layout (stem + 4 stages of 2 basic blocks), trained from scratch: no weights to fetch."""
+
+    def __init__(self, in_channels: int, width: int) -> None:
+        super().__init__()
+        self.stem = nn.Sequential(nn.Conv2d(in_channels, width, 7, 2, 3, bias=False),
+                                  nn.GroupNorm(_groups(width), width), nn.ReLU(), nn.MaxPool2d(3, 2, 1))
+        chans = [width, 2 * width, 4 * width, 8 * width]
+        blocks = []
+        for i, c in enumerate(chans):
+            c_in = chans[max(i - 1, 0)]
+            blocks += [BasicBlock(c_in, c, 1 if i == 0 else 2), BasicBlock(c, c, 1)]
+        self.blocks = nn.Sequential(*blocks)
+        self.out_features = chans[-1]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.blocks(self.stem(x)).mean(dim=(2, 3))
+
+
+def step_embedding(steps: torch.Tensor, dim: int) -> torch.Tensor:
+    """Sinusoidal embedding of diffusion steps [B] -> [B, dim]."""
+    half = dim // 2
+    freqs = torch.exp(-math.log(10000.0) * torch.arange(half, dtype=torch.float32) / max(half - 1, 1))
+    angles = steps.float()[:, None] * freqs[None, :]
+    return torch.cat([angles.sin(), angles.cos()], dim=-1)
+
+
+class ConvBlock1d(nn.Sequential):
+    def __init__(self, c_in: int, c_out: int, kernel: int = 5) -> None:
+        super().__init__(nn.Conv1d(c_in, c_out, kernel, padding=kernel // 2), nn.GroupNorm(8, c_out),
+                         nn.Mish())
+
+
+class CondResBlock1d(nn.Module):
+    """Two conv blocks with FiLM (per-channel scale and bias) from the condition in between."""
+
+    def __init__(self, c_in: int, c_out: int, cond_dim: int) -> None:
+        super().__init__()
+        self.block1 = ConvBlock1d(c_in, c_out)
+        self.block2 = ConvBlock1d(c_out, c_out)
+        self.film = nn.Sequential(nn.Mish(), nn.Linear(cond_dim, 2 * c_out))
+        self.shortcut = nn.Conv1d(c_in, c_out, 1) if c_in != c_out else nn.Identity()
+
+    def forward(self, x: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        scale, bias = self.film(cond)[:, :, None].chunk(2, dim=1)
+        y = self.block1(x) * scale + bias
+        return self.block2(y) + self.shortcut(x)
+
+
+class ConditionalUnet1d(nn.Module):
+    """Noise prediction over an action chunk [B, Ha, A], conditioned on the diffusion step and observation."""
+
+    def __init__(self, action_dim: int, obs_dim: int, dims: tuple[int, ...], step_features: int) -> None:
+        super().__init__()
+        self.step_features = step_features
+        self.step_mlp = nn.Sequential(nn.Linear(step_features, 4 * step_features), nn.Mish(),
+                                      nn.Linear(4 * step_features, step_features))
+        cond = step_features + obs_dim
+        chans = [action_dim, *dims]
+        self.down = nn.ModuleList()
+        for i, (c_in, c_out) in enumerate(zip(chans[:-1], chans[1:], strict=True)):
+            last = i == len(dims) - 1
+            self.down.append(nn.ModuleList([
+                CondResBlock1d(c_in, c_out, cond), CondResBlock1d(c_out, c_out, cond),
+                nn.Identity() if last else nn.Conv1d(c_out, c_out, 3, 2, 1)]))
+        self.mid = nn.ModuleList([CondResBlock1d(dims[-1], dims[-1], cond) for _ in range(2)])
+        self.up = nn.ModuleList()
+        for c_out, c_in in reversed(list(zip(dims[:-1], dims[1:], strict=True))):
+            self.up.append(nn.ModuleList([
+                CondResBlock1d(2 * c_in, c_out, cond), CondResBlock1d(c_out, c_out, cond),
+                nn.ConvTranspose1d(c_out, c_out, 4, 2, 1)]))
+        self.final = nn.Sequential(ConvBlock1d(dims[0], dims[0]), nn.Conv1d(dims[0], action_dim, 1))
+
+    def forward(self, sample: torch.Tensor, steps: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        cond = torch.cat([self.step_mlp(step_embedding(steps, self.step_features)), obs], dim=-1)
+        x = sample.transpose(1, 2)
+        skips = []
+        for res1, res2, down in self.down:
+            x = res2(res1(x, cond), cond)
+            skips.append(x)
+            x = down(x)
+        for res in self.mid:
+            x = res(x, cond)
+        # As diffusion_policy: the deepest skips feed the up path; each up level restores one halving.
+        for (res1, res2, up), skip in zip(self.up, reversed(skips[1:]), strict=True):
+            x = up(res2(res1(torch.cat([x, skip], dim=1), cond), cond))
+        return self.final(x).transpose(1, 2)
+
+
+
+class StudentPolicy(nn.Module):
+    """epsilon_phi(a_k, k, obs) of paper eq. 10. States enter raw and are normalised inside; actions are
+    handled in normalised units, ``action_norm`` converts them back to env units."""
+
+    def __init__(self, config: StudentConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.state_norm = RangeNormaliser(config.state_dim)
+        self.action_norm = RangeNormaliser(config.action_dim)
+        self.encoder = ResNet18(config.obs_horizon, config.width)
+        self.state_mlp = nn.Sequential(nn.Linear(config.state_dim, config.state_features), nn.ReLU(),
+                                       nn.Linear(config.state_features, config.state_features))
+        obs_dim = self.encoder.out_features + config.state_features
+        self.head = ConditionalUnet1d(config.action_dim, obs_dim, config.head_dims, config.step_features)
+
+    def encode(self, depth: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        """Preprocessed depth [B, To, H, W] + raw state [B, S] -> observation feature [B, F]."""
+        return torch.cat([self.encoder(depth), self.state_mlp(self.state_norm.normalise(state))], dim=-1)
+
+    def forward(self, noisy_actions: torch.Tensor, steps: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        return self.head(noisy_actions, steps, obs)

@@ -1,0 +1,1 @@
+"""Teachers that act on privileged state: the scripted expert (here) and the PPO teacher."""

@@ -1,0 +1,150 @@
+"""``python -m trainer teacher fit|bench|plot``: train the PPO teacher, measure vectorised env throughput,
+draw learning curves.
+
+  fit    warm start from the scripted expert (unless --warm-start-episodes 0), then PPO within --steps /
+         --budget-minutes; checkpoint, progress.csv and learning_curve.png in --out; --resume continues.
+  bench  env steps/s of the state-only env, SubprocVecEnv vs DummyVecEnv, random actions.
+  plot   learning-curve PNG from one or more progress.csv files (LABEL=PATH).
+  smoothness  success per kind and mean squared joint acceleration (eq. 7) of policies, side by side.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hil_sim.objects import ObjectError
+from trainer.evaluate import object_list
+from trainer.teacher.normaliser import NormaliserError
+from trainer.teacher.ppo import VEC_KINDS, TeacherConfig, TeacherError, make_vec_env, train
+from trainer.teacher.progress import plot_curves
+from trainer.teacher.smoothness import measure
+
+
+def _field_docs(cls: type) -> dict[str, str]:
+    """The docstring under each dataclass field: they are the --help text."""
+    body = ast.parse(inspect.getsource(cls)).body[0].body
+    return {a.target.id: b.value.value.strip() for a, b in zip(body, body[1:], strict=False)
+            if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant)}
+
+
+def _add_config_flags(p: argparse.ArgumentParser) -> None:
+    docs = _field_docs(TeacherConfig)
+    for f in dataclasses.fields(TeacherConfig):
+        if f.name == "objects":
+            continue
+        flag = "--" + f.name.replace("_", "-")
+        if f.name == "net":
+            p.add_argument(flag, type=int, nargs="+", default=list(f.default), help="actor/critic layers")
+        else:
+            p.add_argument(flag, type=type(f.default), default=f.default,
+                           help=f"{docs.get(f.name, '')} (default {f.default})")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m trainer teacher", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="command", required=True)
+    fit = sub.add_parser("fit", help="train the PPO teacher")
+    fit.add_argument("--out", type=Path, required=True, help="checkpoint folder (created or resumed)")
+    fit.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
+    fit.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
+    fit.add_argument("--workers", type=int, default=2, help="processes for the warm-start demos")
+    _add_config_flags(fit)
+    bench = sub.add_parser("bench", help="vectorised env steps/s, subproc vs dummy")
+    bench.add_argument("--steps", type=int, default=400, help="vectorised steps per setting")
+    bench.add_argument("--n-envs", type=int, default=2)
+    bench.add_argument("--json", type=Path, help="write the figures here")
+    plot = sub.add_parser("plot", help="learning-curve PNG from progress.csv files")
+    plot.add_argument("curves", nargs="+", help="LABEL=PATH/progress.csv")
+    plot.add_argument("--png", type=Path, required=True)
+    smooth = sub.add_parser("smoothness", help="eq. 7 smoothness and success of policies")
+    smooth.add_argument("--policy", action="append", required=True, help="scripted | ppo:CKPT (repeatable)")
+    smooth.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds")
+    smooth.add_argument("--episodes", type=int, default=40)
+    smooth.add_argument("--seed", type=int, default=10_000)
+    smooth.add_argument("--workers", type=int, default=2)
+    smooth.add_argument("--json", type=Path, help="write the figures here")
+    return p
+
+
+def _fit(args: argparse.Namespace) -> int:
+    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(TeacherConfig) if f.name != "objects"}
+    config = TeacherConfig(objects=object_list(args.objects), **{**values, "net": tuple(values["net"])})
+    summary = train(config, args.out, resume=args.resume, workers=args.workers)
+    plot_curves({args.out.name: args.out / "progress.csv"}, args.out / "learning_curve.png")
+    print(json.dumps({k: v for k, v in summary.items() if k != "config"}, indent=2))
+    return 0
+
+
+def bench_vec(vec: str, n_envs: int, steps: int) -> float:
+    """Env steps/s (summed over envs) of random actions after one warm-up step."""
+    venv = make_vec_env(TeacherConfig(n_envs=n_envs, vec=vec, batch_size=1))
+    try:
+        venv.reset()
+        rng = np.random.default_rng(0)
+        actions = lambda: rng.uniform(-1, 1, (n_envs, 8)).astype(np.float32)  # noqa: E731
+        venv.step(actions())
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            venv.step(actions())
+        return steps * n_envs / (time.perf_counter() - t0)
+    finally:
+        venv.close()
+
+
+def _bench(args: argparse.Namespace) -> int:
+    result = {f"{vec}_steps_per_s": round(bench_vec(vec, args.n_envs, args.steps), 1) for vec in VEC_KINDS}
+    result.update(n_envs=args.n_envs, steps=args.steps)
+    print(json.dumps(result))
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=2))
+    return 0
+
+
+def _plot(args: argparse.Namespace) -> int:
+    curves = {}
+    for item in args.curves:
+        label, sep, path = item.partition("=")
+        if not sep:
+            raise TeacherError(f"curve {item!r}: expected LABEL=PATH")
+        curves[label] = Path(path)
+    plot_curves(curves, args.png)
+    return 0
+
+
+def _smoothness(args: argparse.Namespace) -> int:
+    kinds = object_list(args.objects)
+    results = [measure(spec, kinds, args.episodes, seed=args.seed, workers=args.workers)
+               for spec in args.policy]
+    for r in results:
+        print(f"{r['policy']:<40} success {r['success_rate']:6.1%}  mean sq joint accel "
+              f"{r['mean_sq_joint_accel']:9.2f} (rad/s^2)^2  p99 {r['p99_sq_joint_accel']:9.2f}  "
+              f"steps/ep {r['mean_steps']:.0f}")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+COMMANDS = {"fit": _fit, "bench": _bench, "plot": _plot, "smoothness": _smoothness}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return COMMANDS[args.command](args)
+    except (TeacherError, NormaliserError, ObjectError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

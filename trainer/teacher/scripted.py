@@ -1,0 +1,194 @@
+"""Scripted privileged expert: a top-down grasp planner on the true object pose.
+
+Phases: approach (10 cm above the grasp point, hand turned so the fingers close across the object's
+narrowest horizontal axis), descend, close, lift (object centre to p_target), hold. Each control step
+solves damped-least-squares inverse kinematics on MuJoCo Jacobians of a kinematic copy of the arm for a
+waypoint at most ``max_step_m`` from the hand, and emits the env action a = (q_ik - q) / s, scaled down
+as a whole to fit [-1, 1], plus the gripper command: the same 8-d actions a learned teacher emits at 10 Hz.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from hil_sim.world import HOME_Q, TABLE_Z, World
+
+_OBJ = slice(25, 28)
+_Goal = tuple[np.ndarray, np.ndarray, float]
+_OBJ_QUAT = slice(28, 32)
+
+
+@dataclass(frozen=True)
+class ExpertConfig:
+    approach_height_m: float = 0.10
+    """Height of the pre-grasp point above the grasp point."""
+    max_step_m: float = 0.04
+    """Longest Cartesian move asked of the hand per control step on the way to the pre-grasp point."""
+    fine_step_m: float = 0.025
+    """The same while descending and lifting, where a bent path would knock the object."""
+    pad_offset_m: float = 0.015
+    """Grasp site height above the object centre: puts the finger pads' middle on the centre."""
+    tip_clearance_m: float = 0.058
+    """Lowest grasp-site height above the table: fingertips (5.2 cm below it) stay clear."""
+    palm_clearance_m: float = 0.034
+    """Lowest grasp-site height below the object's top: the palm (4.5 cm above it) must not press on
+    tall objects such as the can, which tips them out of the fingers."""
+    close_steps: int = 6
+    """Steps to wait for the fingers to close before lifting."""
+    pos_tol_m: float = 0.004
+    """How close the hand must be to the pre-grasp and grasp points: fingers clear an object by ~6 mm."""
+    ik_iters: int = 15
+    ik_damping: float = 0.05
+    null_gain: float = 0.05
+    """Pull towards the home pose in the Jacobian's null space (keeps the elbow tidy)."""
+
+
+class Phase(enum.IntEnum):
+    APPROACH = 0
+    DESCEND = 1
+    CLOSE = 2
+    LIFT = 3
+
+
+class ScriptedExpert:
+    """``reset(env_info)`` then ``act(obs)`` with ``obs.privileged`` the env's 40-d observation."""
+
+    def __init__(self, config: ExpertConfig | None = None) -> None:
+        self.config = config or ExpertConfig()
+        self._kin = _Kinematics()
+        self._phase, self._count = Phase.APPROACH, 0
+        self._target = np.zeros(3)
+        self._extent = np.full(3, 0.03)
+        self._scale = 0.05
+        self._lift_offset = np.zeros(3)
+
+    def reset(self, env_info: dict) -> None:
+        self._target = np.asarray(env_info["p_target"], float)
+        self._extent = np.asarray(env_info["object_half_extent"], float)
+        self._scale = float(env_info["action_scale"])
+        self._phase, self._count = Phase.APPROACH, 0
+
+    @property
+    def phase(self) -> Phase:
+        return self._phase
+
+    def act(self, obs) -> np.ndarray:
+        priv = np.asarray(getattr(obs, "privileged", obs), float)
+        q = priv[:7]
+        ee, rot = self._kin.site(priv[:9])
+        goal, rot_goal, gripper = self._plan(priv, ee, rot)
+        step = self.config.max_step_m if self._phase == Phase.APPROACH else self.config.fine_step_m
+        waypoint = ee + _clip_norm(goal - ee, step)
+        q_ik = self._kin.solve(priv[:9], waypoint, rot_goal, self.config)
+        delta = (q_ik - q) / self._scale
+        # Scale joints 1-6 together, not one by one: clipping them separately bends the hand's path.
+        # Joint 7 turns the hand about its own axis, which holds the grasp site, so it may clip alone.
+        delta[:6] /= max(1.0, float(np.abs(delta[:6]).max()))
+        delta[6] = np.clip(delta[6], -1.0, 1.0)
+        return np.append(delta, gripper).astype(np.float32)
+
+    def _plan(self, priv: np.ndarray, ee: np.ndarray, rot: np.ndarray) -> _Goal:
+        """Goal position and hand frame for this step, and the gripper command."""
+        c = self.config
+        obj = priv[_OBJ]
+        height = max(obj[2] + c.pad_offset_m, obj[2] + self._extent[2] - c.palm_clearance_m,
+                     TABLE_Z + c.tip_clearance_m)
+        grasp = np.array([obj[0], obj[1], height])
+        rot_goal = _top_down(self._grasp_yaw(priv[_OBJ_QUAT], rot))
+        self._count += 1
+        if self._phase == Phase.APPROACH:
+            goal = grasp + [0.0, 0.0, c.approach_height_m]
+            if _arrived(ee, goal, rot, rot_goal, c.pos_tol_m) or self._count > 60:
+                self._next(Phase.DESCEND)
+            return goal, rot_goal, -1.0
+        if self._phase == Phase.DESCEND:
+            if _arrived(ee, grasp, rot, rot_goal, c.pos_tol_m) or self._count > 25:
+                self._next(Phase.CLOSE)
+                self._lift_offset = ee - obj
+            return grasp, rot_goal, -1.0
+        if self._phase == Phase.CLOSE:
+            if self._count >= c.close_steps:
+                self._next(Phase.LIFT)
+            return ee, rot, 1.0
+        return self._target + self._lift_offset, rot, 1.0
+
+    def _next(self, phase: Phase) -> None:
+        self._phase, self._count = phase, 0
+
+    def _grasp_yaw(self, obj_quat: np.ndarray, rot: np.ndarray) -> float:
+        """Closing direction across the object's narrow horizontal axis, the one nearest the hand's now."""
+        now = np.arctan2(rot[1, 1], rot[0, 1])
+        if abs(self._extent[0] - self._extent[1]) < 0.1 * max(self._extent[:2]):
+            return now  # round in plan view: any closing direction works, turning the wrist only costs time
+        mat = np.zeros(9)
+        mujoco.mju_quat2Mat(mat, obj_quat)
+        axis = mat.reshape(3, 3)[:, 0 if self._extent[0] <= self._extent[1] else 1]
+        yaw = np.arctan2(axis[1], axis[0])
+        return now + (yaw - now + np.pi / 2) % np.pi - np.pi / 2
+
+
+class _Kinematics:
+    """A robot-only copy of the world for forward kinematics and Jacobians."""
+
+    def __init__(self) -> None:
+        world = World(kinds=())
+        self.model = world.model
+        self.data = mujoco.MjData(world.model)
+        self._site_id = world.model.site("end_effector").id
+        self._n = 9
+
+    def _set(self, q9: np.ndarray) -> None:
+        self.data.qpos[: self._n] = q9
+        mujoco.mj_kinematics(self.model, self.data)
+
+    def site(self, q9: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self._set(q9)
+        sid = self._site_id
+        return self.data.site_xpos[sid].copy(), self.data.site_xmat[sid].reshape(3, 3).copy()
+
+    def solve(self, q9: np.ndarray, pos: np.ndarray, rot: np.ndarray, c: ExpertConfig) -> np.ndarray:
+        """Joint angles putting the grasp site at ``pos`` with frame ``rot`` (damped least squares)."""
+        q = np.array(q9, float)
+        for _ in range(c.ik_iters):
+            err, J = self._error_jacobian(q, pos, rot)
+            if np.linalg.norm(err) < 1e-4:
+                break
+            q[:7] += J.T @ np.linalg.solve(J @ J.T + c.ik_damping**2 * np.eye(6), err)
+        _, J = self._error_jacobian(q, pos, rot)
+        null = np.eye(7) - np.linalg.pinv(J) @ J
+        return q[:7] + null @ (c.null_gain * (np.asarray(HOME_Q) - q[:7]))
+
+    def _error_jacobian(self, q: np.ndarray, pos: np.ndarray, rot: np.ndarray) -> tuple[np.ndarray, ...]:
+        self._set(q)
+        mujoco.mj_comPos(self.model, self.data)
+        jacp, jacr = np.zeros((3, self.model.nv)), np.zeros((3, self.model.nv))
+        mujoco.mj_jacSite(self.model, self.data, jacp, jacr, self._site_id)
+        cur = self.data.site_xmat[self._site_id].reshape(3, 3)
+        err = np.concatenate([pos - self.data.site_xpos[self._site_id], _rotation_error(cur, rot)])
+        return err, np.vstack([jacp[:, :7], jacr[:, :7]])
+
+
+def _rotation_error(rot: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    """Small-angle rotation vector taking ``rot`` to ``goal``."""
+    return 0.5 * sum(np.cross(rot[:, i], goal[:, i]) for i in range(3))
+
+
+def _top_down(yaw: float) -> np.ndarray:
+    """Hand frame with z down and the finger closing axis (y) at ``yaw``."""
+    y = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    z = np.array([0.0, 0.0, -1.0])
+    return np.column_stack([np.cross(y, z), y, z])
+
+
+def _arrived(pos: np.ndarray, goal: np.ndarray, rot: np.ndarray, rot_goal: np.ndarray, tol: float) -> bool:
+    angle = np.linalg.norm(_rotation_error(rot, rot_goal))
+    return bool(np.linalg.norm(goal - pos) < tol and angle < 0.05)
+
+
+def _clip_norm(v: np.ndarray, limit: float) -> np.ndarray:
+    n = np.linalg.norm(v)
+    return v if n <= limit else v * (limit / n)
