@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import ast
 import dataclasses
-import inspect
-import textwrap
 import typing
+
+from trainer.config_docs import field_docs
 
 
 def add_dataclass_args(parser: argparse.ArgumentParser, cls: type) -> None:
@@ -26,17 +25,6 @@ def add_dataclass_args(parser: argparse.ArgumentParser, cls: type) -> None:
         else:
             parser.add_argument(flag, type=kind if kind in (int, float, str) else str, default=default,
                                 help=f"{docs.get(f.name, '')} (default {default})")
-
-
-def field_docs(cls: type) -> dict[str, str]:
-    """Attribute docstrings: the string literal right after each field in the class body."""
-    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
-    docs = {}
-    for prev, node in zip(body, body[1:], strict=False):
-        if (isinstance(prev, ast.AnnAssign) and isinstance(node, ast.Expr)
-                and isinstance(node.value, ast.Constant) and isinstance(node.value.value, str)):
-            docs[prev.target.id] = " ".join(node.value.value.split())
-    return docs
 
 
 def from_args(cls: type, args: argparse.Namespace, **extra: object) -> object:

@@ -11,9 +11,7 @@ draw learning curves.
 from __future__ import annotations
 
 import argparse
-import ast
 import dataclasses
-import inspect
 import json
 import sys
 import time
@@ -22,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from hil_sim.objects import ObjectError
+from trainer.config_docs import field_docs
 from trainer.evaluate import object_list
 from trainer.teacher.normaliser import NormaliserError
 from trainer.teacher.ppo import VEC_KINDS, TeacherConfig, TeacherError, make_vec_env, train
@@ -29,15 +28,8 @@ from trainer.teacher.progress import plot_curves
 from trainer.teacher.smoothness import measure
 
 
-def _field_docs(cls: type) -> dict[str, str]:
-    """The docstring under each dataclass field: they are the --help text."""
-    body = ast.parse(inspect.getsource(cls)).body[0].body
-    return {a.target.id: b.value.value.strip() for a, b in zip(body, body[1:], strict=False)
-            if isinstance(a, ast.AnnAssign) and isinstance(b, ast.Expr) and isinstance(b.value, ast.Constant)}
-
-
 def _add_config_flags(p: argparse.ArgumentParser) -> None:
-    docs = _field_docs(TeacherConfig)
+    docs = field_docs(TeacherConfig)
     for f in dataclasses.fields(TeacherConfig):
         if f.name == "objects":
             continue
