@@ -167,7 +167,6 @@ class ControlLoop:
         self._gripper: float | None = None
         self._hold_q: np.ndarray | None = None
         self._driver_fault = ""
-        policy.warmup(3)  # first-call allocations happen here, not in tick 0
 
     # ---- the loop -------------------------------------------------------------------------------
     def run(self) -> int:
@@ -194,6 +193,7 @@ class ControlLoop:
 
     def _startup(self) -> None:
         """First frames (a few, so a measuring camera knows its period) and the first robot state."""
+        self.policy.warmup(3)  # first-call allocations happen here, not in tick 0; a NaN model fails here
         end = self.clock() + self.config.startup_timeout_s
         while self._frame is None and not self.stop.is_set():
             if self.clock() > end:

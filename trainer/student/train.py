@@ -196,6 +196,7 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
         save_run(cfg, ckpt, net, optim)
         (Path(cfg.out) / "summary.json").write_text(json.dumps(summary, indent=1))
     if world > 1:
+        dist.barrier()  # leave together: rank 0 writes files last, and gloo teardown hangs on a departed peer
         dist.destroy_process_group()
     return summary
 
