@@ -39,6 +39,7 @@ from runtime.protocol import DEFAULT_ROBOT, DOF, Encoder, Message, robot_endpoin
 from runtime.transport import CurveKeys, Newest, connect, send
 
 EXIT_OK, EXIT_CAMERA, EXIT_ROBOT, EXIT_POLICY = 0, 3, 4, 5
+STATE_QUEUE = 4096
 
 
 class RobotStalled(RuntimeError):
@@ -92,7 +93,8 @@ class RobotLink:
                  ctx: zmq.Context | None = None) -> None:
         ctx = ctx or zmq.Context.instance()
         state_ep, command_ep = robot_endpoints(address)
-        self._state = Newest(connect(ctx, zmq.SUB, state_ep, keys=keys), "state")
+        # ~300-byte states at up to 1 kHz, read once per tick or less: queue a few seconds of them.
+        self._state = Newest(connect(ctx, zmq.SUB, state_ep, keys=keys, queue=STATE_QUEUE), "state")
         self._cmd = connect(ctx, zmq.PUSH, command_ep, keys=keys)
         self._enc = Encoder()
         self.latest: Message | None = None

@@ -72,10 +72,12 @@ class StateLog:
     def moving_for(self, seconds: float, *, timeout: float = TIMEOUT) -> None:
         """Wait until the arm has been commanded (not holding) for ``seconds`` in a row."""
         end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            recent = [s for s in self.states if s.t > time.monotonic() - seconds]
-            if len(recent) > 10 and not any(s.holding for s in recent) and \
-                    recent[0].t - seconds < time.monotonic() - seconds + 0.05:
+        while (now := time.monotonic()) < end:
+            recent = [s for s in self.states if s.t > now - seconds]
+            # The window must be covered from its start: a few non-holding states alone may be the tail of
+            # the previous runtime's last command, before this test's runtime has even started.
+            covered = len(recent) > 10 and recent[0].t < now - seconds + 0.05
+            if covered and not any(s.holding for s in recent):
                 return
             time.sleep(0.05)
         raise TimeoutError(f"the arm was never commanded for {seconds} s in a row within {timeout} s")

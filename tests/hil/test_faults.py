@@ -76,8 +76,6 @@ def test_driver_restart_runtime_resumes_and_arm_holds_meanwhile(sim, state_log, 
         stop(proc)
 
 
-@pytest.mark.xfail(reason="known bug (issue 3): during a 5 s camera stall the runtime also loses robot "
-                          "state and exits 4 (robot) instead of 3 (camera)", strict=False)
 def test_camera_stall_makes_the_arm_hold_and_the_runtime_exit_with_camera_error(sim, state_log,
                                                                                  handmade_model, tmp_path):
     proc = run(sim, handmade_model, tmp_path)

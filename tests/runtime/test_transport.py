@@ -105,3 +105,35 @@ def test_poll_waits_at_most_its_timeout():
     assert 0.09 < time.monotonic() - t < 0.3
     sub.sock.close()
     assert threading.active_count() >= 1
+
+
+def test_robot_state_stays_fresh_when_read_once_per_tick():
+    """A 200 Hz state stream read every 100 ms: the newest state the runtime sees must stay young. A shallow
+    SUB queue let a backlog of old states build up in the kernel buffer (seconds behind after a few s)."""
+    from runtime.loop import RobotLink
+
+    port = free_port_pair()
+    pub = bind(zmq.Context.instance(), zmq.PUB, f"tcp://127.0.0.1:{port}")
+    pub.sndhwm = 1000
+    link = RobotLink(f"tcp://127.0.0.1:{port}")
+    stop = threading.Event()
+
+    def publish():
+        enc = Encoder()
+        while not stop.is_set():
+            pub.send_multipart(enc.encode("state", t_capture=time.monotonic(), q=[0.0] * 7, dq=[0.0] * 7,
+                                          gripper=0.0, holding=False, fault=""))
+            time.sleep(0.005)
+
+    threading.Thread(target=publish, daemon=True).start()
+    try:
+        ages = []
+        for _ in range(25):
+            time.sleep(0.1)
+            state = link.poll()
+            ages.append(time.monotonic() - state["t_capture"])
+    finally:
+        stop.set()
+        link.close()
+        pub.close()
+    assert max(ages[5:]) < 0.1, [round(a, 3) for a in ages]
