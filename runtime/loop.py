@@ -142,6 +142,9 @@ class Tick:
     status: str | None = None
 
 
+_EXIT_CODES = ((CameraError, EXIT_CAMERA), (RobotStalled, EXIT_ROBOT), (PolicyError, EXIT_POLICY))
+"""Fatal error kind -> the runtime's exit status (documented in ``runtime --help``)."""
+
 # fault code -> (LoopConfig field with its grace time, error raised when it is exceeded)
 _GIVE_UP = {"camera_stalled": ("camera_give_up_s", CameraStalled),
             "robot_stalled": ("robot_give_up_s", RobotStalled),
@@ -181,15 +184,9 @@ class ControlLoop:
         except CameraEnded as exc:
             self._report("camera_ended", str(exc))
             return EXIT_OK
-        except CameraError as exc:
+        except (CameraError, RobotStalled, PolicyError) as exc:
             self._report("fatal", str(exc))
-            return EXIT_CAMERA
-        except RobotStalled as exc:
-            self._report("fatal", str(exc))
-            return EXIT_ROBOT
-        except PolicyError as exc:
-            self._report("fatal", str(exc))
-            return EXIT_POLICY
+            return next(code for kind, code in _EXIT_CODES if isinstance(exc, kind))
         finally:
             self._final_hold()
 

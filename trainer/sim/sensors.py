@@ -27,7 +27,7 @@ def clean(depth: np.ndarray) -> np.ndarray:
 
 
 SENSORS: dict[str, Factory] = {"clean": lambda _arg: clean}
-PLUGINS: tuple[str, ...] = ()
+PLUGINS: tuple[str, ...] = ("trainer.ddg.baselines",)
 """Modules that call ``register`` when imported (the DDG and noise baselines add theirs here)."""
 
 
