@@ -1,9 +1,11 @@
-"""``python -m hil_sim [--seconds S] [--rate HZ] [--model PATH] [--report DIR]``: the HIL latency benchmark.
+"""``python -m hil_sim [--seconds S] [--rate HZ] [--model PATH] [--report DIR] [--sensor NAME]``: the HIL
+latency benchmark.
 
 Starts the simulated camera + robot (hil_sim.server), starts the real ``runtime`` as a separate process
 against them, runs for S seconds at HZ with every process pinned to the machine's first two cores, and
 writes DIR/report.json, DIR/latency.png, DIR/ticks.jsonl, DIR/runtime.log. Exit status 0 only when the
-rate was held: no late tick and the achieved rate within 1 % of HZ.
+rate was held: no late tick and the achieved rate within 1 % of HZ. ``--sensor stereo`` makes the camera
+publish the active-stereo model's depth (``hil_sim.stereo``), by default at 5 Hz.
 """
 
 from __future__ import annotations
@@ -24,6 +26,9 @@ REPO = Path(__file__).resolve().parents[1]
 TRAINED_MODEL = REPO / "models" / "student.onnx"
 UNTRAINED_MODEL = REPO / "runs" / "hil" / "untrained_student.onnx"
 STARTUP_GRACE_S = 90.0
+STEREO_CAMERA_HZ = 5.0
+"""The lowest D455 frame rate (5/15/30 fps): a stereo frame costs ~150-350 ms on 2 shared cores
+(docs/stereo.md), so under load the camera falls below it and skips slots."""
 
 
 class BenchmarkError(RuntimeError):
@@ -41,6 +46,7 @@ class Run:
     camera: str = DEFAULT_CAMERA
     robot: str = DEFAULT_ROBOT
     camera_hz: float = 15.0
+    sensor: str = "clean"
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
@@ -54,8 +60,14 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
                    help="report folder (default runs/hil)")
     p.add_argument("--camera", default=DEFAULT_CAMERA, help="depth PUB endpoint (default %(default)s)")
     p.add_argument("--robot", default=DEFAULT_ROBOT, help="driver state endpoint (default %(default)s)")
-    p.add_argument("--camera-hz", type=float, default=15.0, help="simulated D455 frame rate (default 15)")
-    return p.parse_args(argv)
+    p.add_argument("--camera-hz", type=float,
+                   help=f"simulated D455 frame rate (default 15; {STEREO_CAMERA_HZ:g} with --sensor stereo)")
+    p.add_argument("--sensor", choices=("clean", "stereo"), default="clean",
+                   help="depth the camera publishes: exact (clean) or the active-stereo model")
+    args = p.parse_args(argv)
+    if args.camera_hz is None:
+        args.camera_hz = STEREO_CAMERA_HZ if args.sensor == "stereo" else 15.0
+    return args
 
 
 def resolve_model(model: Path | None) -> Path:
@@ -123,13 +135,14 @@ def benchmark(run: Run) -> dict:
 
     cores = pin_cores()
     run.report_dir.mkdir(parents=True, exist_ok=True)
-    config = SimConfig(camera=run.camera, robot=run.robot, camera_hz=run.camera_hz)
+    config = SimConfig(camera=run.camera, robot=run.robot, camera_hz=run.camera_hz, sensor=run.sensor)
     with SimServer(config) as sim:
         t0, steps0 = time.monotonic(), sim.driver.steps
         code, usage = run_runtime(run)
         elapsed = time.monotonic() - t0
         sim_stats = {"camera_fps": round(sim.camera.published / elapsed, 2),
                      "render_ms_mean": round(sim.camera.render_ms_mean, 2),
+                     "hidden_lag_ms_mean": round(sim.camera.hidden_lag_ms_mean, 2), "sensor": run.sensor,
                      "state_hz": round((sim.driver.steps - steps0) / elapsed, 1),
                      "physics_lag_s": round(sim.physics.lag_s, 3),
                      "driver_error": repr(sim.driver_error) if sim.driver_error else None}
@@ -152,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse(argv)
     try:
         run = Run(args.seconds, args.rate, resolve_model(args.model), args.report, args.camera, args.robot,
-                  args.camera_hz)
+                  args.camera_hz, args.sensor)
         doc = benchmark(run)
     except (BenchmarkError, report.ReportError, ValueError) as exc:
         print(f"hil_sim: {exc}", file=sys.stderr)

@@ -12,6 +12,11 @@ Rendering at 848x480 with llvmpipe costs ~60 ms on these 2 cores (measured), mor
 share, so the camera renders at ``render_scale`` (default 1/2: ~25 ms) and repeats pixels back to 848x480:
 the wire format, stream size and preprocessing the runtime sees are the real ones, the detail is that of a
 424x240 sensor (the policy sees 128x96 anyway).
+
+``sensor="stereo"`` publishes the active-stereo model's depth instead (``hil_sim.stereo``: holes, noise;
+its own working resolution). A frame takes longer to compute than a D455 takes to deliver one, so a frame
+is stamped as captured ``publish_delay_s`` before it is ready, as the real sensor's latency; the scene it
+shows is older than that by the rest of the compute time (reported as ``hidden_lag_ms``).
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT, Encoder  # noqa: E40
 from runtime.transport import bind  # noqa: E402
 
 DEPTH_SCALE = 0.001  # uint16 millimetres, as a D455 reports with its default depth units
+SENSORS = ("clean", "stereo")
 
 
 @dataclass(frozen=True)
@@ -60,8 +66,13 @@ class SimConfig:
     """Driver state rate."""
     object_kind: str = "cube"
     seed: int = 0
+    sensor: str = "clean"
+    """Depth the camera publishes: ``clean`` (exact, rendered at ``render_scale``) or ``stereo`` (the
+    active-stereo model with its fitted parameters)."""
 
     def __post_init__(self) -> None:
+        if self.sensor not in SENSORS:
+            raise ValueError(f"sensor must be one of {', '.join(SENSORS)}, got {self.sensor!r}")
         if not 1.0 <= self.camera_hz <= 90.0:
             raise ValueError(f"camera_hz must be in [1, 90], got {self.camera_hz}")
         if not (0 < self.render_scale <= 1 and (1 / self.render_scale).is_integer()):
@@ -121,7 +132,7 @@ class CameraPublisher:
         ctx = mp.get_context("spawn")  # no fork of a process that holds a GL context and zmq sockets
         self.qpos = ctx.Array("d", nq)
         self._published = ctx.Value("l", 0)
-        self._render = ctx.Array("d", 2)  # total render seconds, frames rendered
+        self._render = ctx.Array("d", 3)  # total render seconds, frames rendered, total hidden lag seconds
         self._pause_until = ctx.Value("d", 0.0)
         self._drop = ctx.Value("l", 0)
         self._stop = ctx.Event()
@@ -161,32 +172,38 @@ class CameraPublisher:
 
     @property
     def render_ms_mean(self) -> float:
-        total, n = self._render[:]
+        total, n, _ = self._render[:]
         return 1e3 * total / n if n else float("nan")
+
+    @property
+    def hidden_lag_ms_mean(self) -> float:
+        """Mean time by which a frame's scene is older than its capture stamp (compute past the delay)."""
+        _, n, lag = self._render[:]
+        return 1e3 * lag / n if n else float("nan")
 
 
 def _camera_main(config: SimConfig, qpos, published, render, pause_until, drop, stop, ready) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     world = World([config.object_kind])
     world.reset(config.object_kind, config.seed, randomise=False)
-    intr, scale = world.intr, config.render_scale
-    renderer = mujoco.Renderer(world.model, round(intr.height * scale), round(intr.width * scale))
-    renderer.enable_depth_rendering()
+    depth, close = _depth_source(config, world)
     pub = bind(zmq.Context.instance(), zmq.PUB, config.camera)
     enc = Encoder()
-    period, repeat = 1.0 / config.camera_hz, round(1 / scale)
+    period = 1.0 / config.camera_hz
     frame, next_t = 0, time.monotonic()
     ready.set()
     try:
         while not stop.wait(max(0.0, next_t - time.monotonic())):
             with qpos.get_lock():
-                t_capture = time.monotonic()
+                t_snapshot = time.monotonic()
                 world.data.qpos[:] = qpos[:]
             mujoco.mj_forward(world.model, world.data)
-            renderer.update_scene(world.data, CAMERA)
-            mm = to_millimetres(renderer.render(), intr)
-            render[:] = [render[0] + time.monotonic() - t_capture, render[1] + 1]
-            mm = np.repeat(np.repeat(mm, repeat, axis=0), repeat, axis=1) if repeat > 1 else mm
+            mm = depth()
+            done = time.monotonic()
+            t_capture = t_snapshot
+            if config.sensor == "stereo":  # computes longer than a D455 delivers: stamp as its latency says
+                t_capture = max(t_snapshot, done - config.publish_delay_s)
+            render[:] = [render[0] + done - t_snapshot, render[1] + 1, render[2] + t_capture - t_snapshot]
             stop.wait(max(0.0, t_capture + config.publish_delay_s - time.monotonic()))
             if drop.value > 0:
                 drop.value -= 1
@@ -201,7 +218,29 @@ def _camera_main(config: SimConfig, qpos, published, render, pause_until, drop, 
                 next_t += period * np.ceil((time.monotonic() - next_t) / period)
     finally:
         pub.close(linger=0)
-        renderer.close()
+        close()
+
+
+def _depth_source(config: SimConfig, world: World) -> tuple[Callable[[], np.ndarray], Callable[[], None]]:
+    """The camera's frame maker (uint16 mm at the stream size, from the world's current state) and its
+    close function."""
+    if config.sensor == "stereo":
+        from hil_sim.stereo import StereoSensor
+
+        sensor = StereoSensor()
+        sensor.reset(world, config.seed)
+        return lambda: sensor.stream(world), sensor.close
+    intr, scale = world.intr, config.render_scale
+    renderer = mujoco.Renderer(world.model, round(intr.height * scale), round(intr.width * scale))
+    renderer.enable_depth_rendering()
+    repeat = round(1 / scale)
+
+    def exact() -> np.ndarray:
+        renderer.update_scene(world.data, CAMERA)
+        mm = to_millimetres(renderer.render(), intr)
+        return np.repeat(np.repeat(mm, repeat, axis=0), repeat, axis=1) if repeat > 1 else mm
+
+    return exact, renderer.close
 
 
 class SimServer:

@@ -12,9 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from runtime.preprocess import crop_resize
 from trainer.policies import Observation, make_policy
 from trainer.sim.env import EnvConfig, GraspEnv
-from trainer.sim.sensors import Sensor, make_sensor
+from trainer.sim.sensors import SceneSensor, Sensor, make_sensor
 
 
 @dataclass(frozen=True)
@@ -40,6 +41,8 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
                 ) -> Rollout:
     """Reset to ``job``, act until the episode ends; the sensor maps clean depth to what the policy sees."""
     _, info = env.reset(seed=job.seed, options={"kind": job.kind})
+    if isinstance(sensor, SceneSensor):
+        sensor.reset(env.world, job.seed)
     policy.reset(info)
     rollout = Rollout(job.seed, job.kind, False, 0, info["episode"], env.world.intr.K,
                       env.world.camera_extrinsics())
@@ -48,7 +51,7 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
     obs = env.observation()
     while True:
         depth = info.get("depth")
-        seen = sensor(depth) if sensor is not None and depth is not None else depth
+        seen = _observe(sensor, env, depth)
         action = np.asarray(policy.act(Observation(obs, seen, info["state"])), np.float32)
         if record:
             for key, value in (("depth", depth), ("state", info["state"]), ("action", action),
@@ -60,6 +63,16 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
         if terminated or truncated:
             rollout.success = bool(info["success"])
             return rollout
+
+
+def _observe(sensor: Sensor | None, env: GraspEnv, depth: np.ndarray | None) -> np.ndarray | None:
+    """What the policy sees: clean depth through the sensor, or a scene sensor's stream cropped to the
+    episode's window as the runtime crops a camera frame."""
+    if sensor is None or depth is None:
+        return depth
+    if isinstance(sensor, SceneSensor):
+        return crop_resize(sensor.stream(env.world), env.spec, env.world.episode.crop_window)
+    return sensor(depth)
 
 
 _WORKER: dict = {}

@@ -1,6 +1,9 @@
 """Sensor models for evaluation: a sensor maps the clean uint16 depth frame (policy resolution, mm) to what
 the policy sees, e.g. with simulated holes and noise. ``--sensor NAME[:ARG]`` picks one.
 
+A *scene sensor* (``SceneSensor``: ``stereo``) cannot work from clean depth: it gets the world, renders
+the full 848x480 stream itself, and the rollout crops it with ``runtime.preprocess`` as the runtime does.
+
 Add a sensor with ``register("name", factory)`` from its module and list that module in ``PLUGINS`` (imported
 on first use), or name it inline as ``package.module:factory[:ARG]``. A factory takes the ARG string ('' when
 absent) and returns the callable; it runs inside each worker process, so it may load models.
@@ -10,10 +13,21 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-Sensor = Callable[[np.ndarray], np.ndarray]
+
+@runtime_checkable
+class SceneSensor(Protocol):
+    def reset(self, world, seed: int) -> None:
+        """Start an episode in ``world`` (``hil_sim.world.World``); per-episode draws come from ``seed``."""
+
+    def stream(self, world) -> np.ndarray:
+        """uint16 depth at the stream resolution, sensor units (mm), 0 = no data."""
+
+
+Sensor = Callable[[np.ndarray], np.ndarray] | SceneSensor
 Factory = Callable[[str], Sensor]
 
 
@@ -26,7 +40,14 @@ def clean(depth: np.ndarray) -> np.ndarray:
     return depth
 
 
-SENSORS: dict[str, Factory] = {"clean": lambda _arg: clean}
+def stereo(arg: str) -> SceneSensor:
+    """The active-stereo D455 of ``hil_sim.stereo``; ARG: a parameters file (default: the fitted one)."""
+    from hil_sim.stereo import StereoParams, StereoSensor
+
+    return StereoSensor(StereoParams.load(arg or None))
+
+
+SENSORS: dict[str, Factory] = {"clean": lambda _arg: clean, "stereo": stereo}
 PLUGINS: tuple[str, ...] = ("trainer.ddg.baselines",)
 """Modules that call ``register`` when imported (the DDG and noise baselines add theirs here)."""
 
