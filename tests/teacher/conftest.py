@@ -1,5 +1,6 @@
-"""A tiny PPO teacher trained once per session through the CLI (warm start on 2 short scripted episodes,
-then 128 PPO steps, 40-step episodes): the checkpoint the reload and improvement tests use."""
+"""A tiny PPO teacher trained once per session through the CLI (DAgger: 8 short expert episodes and one
+learner round of 2, then 128 PPO steps, 40-step episodes): the checkpoint the reload and improvement tests
+use."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from pathlib import Path
 import pytest
 
 TINY = ("--objects", "cube,can", "--max-steps", "40", "--n-envs", "1", "--vec", "dummy", "--n-steps", "64",
-        "--batch-size", "64", "--n-epochs", "2", "--warm-start-episodes", "2", "--warm-start-epochs", "150",
-        "--workers", "1", "--checkpoint-every", "64")
+        "--batch-size", "64", "--n-epochs", "2", "--dagger-expert-episodes", "8", "--dagger-episodes", "2",
+        "--dagger-rounds", "1", "--dagger-epochs", "100", "--checkpoint-every", "64")
 
 
 @pytest.fixture(scope="session")

@@ -14,6 +14,7 @@ from trainer.sim.env import GraspEnv
 from trainer.teacher.cli import main
 from trainer.teacher.normaliser import ObsNormaliser
 from trainer.teacher.ppo import TeacherConfig, TeacherError, load
+from trainer.teacher.progress import read_curve
 
 from .conftest import TINY
 
@@ -40,9 +41,13 @@ def test_reload_reproduces_actions(tiny_teacher):
 
 def test_checkpoint_records_progress_and_curve(tiny_teacher):
     meta = json.loads((tiny_teacher / "teacher.json").read_text())
-    assert meta["env_steps"] >= 128 and meta["warm_start"]["episodes"] == 2
-    rows = (tiny_teacher / "progress.csv").read_text().splitlines()
-    assert rows[0].startswith("env_steps,") and len(rows) >= 3
+    warm = meta["warm_start"]
+    assert warm["rounds"] == 1 and warm["samples"] == warm["env_steps"] > 0
+    assert meta["env_steps"] >= warm["env_steps"] + 128  # PPO's step count carries on from DAgger's
+    curve = read_curve(tiny_teacher / "progress.csv")
+    stages = [line.split(",")[0] for line in (tiny_teacher / "progress.csv").read_text().splitlines()[1:]]
+    assert stages[0] == "expert" and stages[1].startswith("dagger1") and set(stages[2:]) == {"ppo"}
+    assert np.all(np.diff(curve["env_steps"]) > 0) and curve["env_steps"][1] == warm["env_steps"]
     assert (tiny_teacher / "learning_curve.png").stat().st_size > 1000
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from trainer.policies import Observation, make_policy
-from trainer.teacher.normaliser import NormaliserError, ObsNormaliser
+from trainer.teacher.normaliser import ARM_VELOCITIES, NormaliserError, ObsNormaliser
 from trainer.teacher.ppo import TeacherConfig, make_vec_env, new_model, save
 
 
@@ -47,3 +47,20 @@ def test_fit_matches_batch_statistics_and_clips():
     out = norm(obs)
     assert out.dtype == np.float32 and np.abs(out).max() <= 1.5
     np.testing.assert_allclose(norm(obs[:1] * 0 + obs.mean(0)), 0.0, atol=1e-5)
+
+
+def test_arm_velocities_are_masked_in_training_and_at_use(tmp_path):
+    config = TeacherConfig(objects=("cube",), n_envs=1, vec="dummy", n_steps=8, batch_size=8, max_steps=20)
+    venv = make_vec_env(config)
+    try:
+        venv.reset()
+        moving, *_ = venv.step(np.ones((1, 8), np.float32))  # joints move: raw velocities are non-zero
+        assert np.abs(venv.get_original_obs()[0, list(ARM_VELOCITIES)]).max() > 1e-3
+        assert np.all(moving[0, list(ARM_VELOCITIES)] == 0.0)
+        saved = ObsNormaliser.of(venv)
+        saved.save(tmp_path / "n.npz")
+    finally:
+        venv.close()
+    loaded = ObsNormaliser.load(tmp_path / "n.npz")
+    assert loaded.masked == ARM_VELOCITIES == saved.masked
+    assert np.all(loaded(np.full(40, 5.0, np.float32))[list(ARM_VELOCITIES)] == 0.0)

@@ -1,8 +1,9 @@
 """``python -m trainer teacher fit|bench|plot``: train the PPO teacher, measure vectorised env throughput,
 draw learning curves.
 
-  fit    warm start from the scripted expert (unless --warm-start-episodes 0), then PPO within --steps /
-         --budget-minutes; checkpoint, progress.csv and learning_curve.png in --out; --resume continues.
+  fit    DAgger warm start from the reactive scripted expert (unless --dagger-episodes 0), then PPO within
+         --steps / --budget-minutes; checkpoint, progress.csv and learning_curve.png in --out; --resume
+         continues.
   bench  env steps/s of the state-only env, SubprocVecEnv vs DummyVecEnv, random actions.
   plot   learning-curve PNG from one or more progress.csv files (LABEL=PATH).
   smoothness  success per kind and mean squared joint acceleration (eq. 7) of policies, side by side.
@@ -49,7 +50,6 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--out", type=Path, required=True, help="checkpoint folder (created or resumed)")
     fit.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
     fit.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
-    fit.add_argument("--workers", type=int, default=2, help="processes for the warm-start demos")
     _add_config_flags(fit)
     bench = sub.add_parser("bench", help="vectorised env steps/s, subproc vs dummy")
     bench.add_argument("--steps", type=int, default=400, help="vectorised steps per setting")
@@ -71,7 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _fit(args: argparse.Namespace) -> int:
     values = {f.name: getattr(args, f.name) for f in dataclasses.fields(TeacherConfig) if f.name != "objects"}
     config = TeacherConfig(objects=object_list(args.objects), **{**values, "net": tuple(values["net"])})
-    summary = train(config, args.out, resume=args.resume, workers=args.workers)
+    summary = train(config, args.out, resume=args.resume)
     plot_curves({args.out.name: args.out / "progress.csv"}, args.out / "learning_curve.png")
     print(json.dumps({k: v for k, v in summary.items() if k != "config"}, indent=2))
     return 0

@@ -25,8 +25,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from hil_sim.objects import SEEN
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.teacher.normaliser import ObsNormaliser, SharedVecNormalize
-from trainer.teacher.progress import Progress, TqdmSteps
-from trainer.teacher.warmstart import clone, scripted_demos
+from trainer.teacher.progress import Progress, TqdmSteps, append_row
+from trainer.teacher.warmstart import DaggerConfig, dagger
 
 VEC_KINDS = ("subproc", "dummy")
 
@@ -40,7 +40,7 @@ class TeacherConfig:
     objects: tuple[str, ...] = SEEN
     """Object kinds to train on (the CLI resolves seen | unseen | all | a comma list)."""
     steps: int = 200_000
-    """Env steps budget of this run (added to a resumed run's steps)."""
+    """PPO env steps of this run, after the warm start's (added to a resumed run's steps)."""
     budget_minutes: float = 30.0
     """Wall-clock budget of this run, warm start included; training stops at the first step past it."""
     n_envs: int = 2
@@ -49,18 +49,25 @@ class TeacherConfig:
     """dummy (envs stepped in this process: measured 328 vs 275 env steps/s for subproc on 2 loaded
     cores, the state-only step is too cheap to pay for the pipes) | subproc (one process per env)."""
     seed: int = 0
-    warm_start_episodes: int = 60
-    """Scripted-expert episodes to clone before PPO; 0 trains from scratch."""
-    warm_start_epochs: int = 60
+    dagger_expert_episodes: int = 200
+    """Episodes of DAgger's first round, driven by the reactive scripted expert."""
+    dagger_episodes: int = 60
+    """Episodes per learner round of DAgger; 0 skips DAgger and trains PPO from scratch."""
+    dagger_rounds: int = 14
+    """DAgger rounds driven by the learner after the expert's round (0: plain behaviour cloning)."""
+    dagger_epochs: int = 20
+    """Passes over the aggregated DAgger data after each round."""
     n_steps: int = 512
     """Env steps per env per PPO update."""
     batch_size: int = 256
     n_epochs: int = 5
-    learning_rate: float = 1e-4
+    learning_rate: float = 3e-5
+    """Low: PPO fine-tunes a policy that already grasps (3e-4, SB3's default, for a run from scratch)."""
     gamma: float = 0.99
     clip_range: float = 0.1
-    log_std_init: float = -2.0
-    """Initial log std of the Gaussian actor: small after cloning so exploration does not wreck it."""
+    log_std_init: float = -2.5
+    """Initial log std of the Gaussian actor: small after the warm start so exploration does not wreck it
+    (0 from scratch)."""
     net: tuple[int, ...] = (256, 256)
     max_steps: int = 150
     """Episode length in control steps (the env's limit; shorter only for quick tests)."""
@@ -76,6 +83,10 @@ class TeacherConfig:
         if (self.n_steps * self.n_envs) % self.batch_size:
             raise TeacherError(f"n_steps * n_envs ({self.n_steps * self.n_envs}) must be a multiple of "
                                f"batch_size ({self.batch_size})")
+
+    def dagger(self) -> DaggerConfig:
+        return DaggerConfig(rounds=self.dagger_rounds, expert_episodes=self.dagger_expert_episodes,
+                            episodes=self.dagger_episodes, epochs=self.dagger_epochs, seed=self.seed)
 
     def env_config(self, **overrides) -> EnvConfig:
         """State-only env: PPO never looks at depth, rendering it would cost most of the step time."""
@@ -111,31 +122,37 @@ def save(out: Path, model: PPO, venv: SharedVecNormalize, config: TeacherConfig,
     (out / "teacher.json").write_text(json.dumps(info, indent=2))
 
 
-def train(config: TeacherConfig, out: Path, *, resume: bool = False, workers: int = 2) -> dict:
-    """Warm start (unless resuming or disabled), then PPO until the step or wall-clock budget (the warm start
-    counts against it); returns the summary written to ``out/teacher.json``."""
+def train(config: TeacherConfig, out: Path, *, resume: bool = False) -> dict:
+    """DAgger warm start (unless resuming or disabled; its policy also saved in ``out/warm_start``), then
+    ``config.steps`` PPO env steps or the wall-clock budget, whichever ends first (the warm start's time
+    counts against the budget, and its env steps are in the step count); returns ``out/teacher.json``."""
     t0 = time.perf_counter()
     torch.set_num_threads(1)
     venv = make_vec_env(config)
+    # Statistics frozen after the warm start: the cloned actor must keep seeing the inputs it was fitted on.
+    venv.training = not config.dagger_episodes
     meta: dict = {"wall_s": 0.0}
+    out.mkdir(parents=True, exist_ok=True)
     if resume:
         model, meta = _resume(out, venv)
     else:
+        (out / "progress.csv").unlink(missing_ok=True)
         model = new_model(config, venv)
-        if config.warm_start_episodes:
-            meta.update(_warm_start(config, model, venv, workers))
+        if config.dagger_episodes:
+            meta.update(_warm_start(config, model, venv, out))
+            wall = round(time.perf_counter() - t0, 1)
+            save(out / "warm_start", model, venv, config, {**meta, "wall_s": wall})
     offset = float(meta.get("wall_s", 0.0))
 
     def snapshot() -> None:
         save(out, model, venv, config, {**meta, "wall_s": round(offset + time.perf_counter() - t0, 1)})
 
-    out.mkdir(parents=True, exist_ok=True)
     spent = time.perf_counter() - t0
     progress = Progress(out / "progress.csv", config.budget_minutes * 60 - spent, config.checkpoint_every,
                         snapshot, wall_offset_s=offset + spent)
     try:
         callbacks = [progress, TqdmSteps(config.steps)]
-        model.learn(config.steps, callback=callbacks, reset_num_timesteps=not resume)
+        model.learn(config.steps, callback=callbacks, reset_num_timesteps=False)
     finally:
         venv.close()
     return json.loads((out / "teacher.json").read_text())
@@ -150,16 +167,13 @@ def _resume(out: Path, venv: SharedVecNormalize) -> tuple[PPO, dict]:
     return model, {k: v for k, v in meta.items() if k not in ("config", "env_steps")}
 
 
-def _warm_start(config: TeacherConfig, model: PPO, venv: SharedVecNormalize, workers: int) -> dict:
-    t0 = time.perf_counter()
-    demos = scripted_demos(config.env_config(), config.warm_start_episodes, seed=1_000_000 + config.seed,
-                           gamma=config.gamma, workers=workers)
-    normaliser = ObsNormaliser.fit(demos.obs, epsilon=venv.epsilon, clip=venv.clip_obs)
+def _warm_start(config: TeacherConfig, model: PPO, venv: SharedVecNormalize, out: Path) -> dict:
+    """DAgger, its rows in progress.csv; PPO's step count and normaliser carry on from it."""
+    normaliser, summary = dagger(model, config.env_config(), config.dagger(), gamma=config.gamma,
+                                 log=lambda row: append_row(out / "progress.csv", row))
     normaliser.install(venv)
-    losses = clone(model, demos, normaliser, epochs=config.warm_start_epochs, seed=config.seed)
-    return {"warm_start": {"episodes": demos.episodes, "successes": demos.successes,
-                           "samples": len(demos.obs), "seconds": round(time.perf_counter() - t0, 1),
-                           **losses}}
+    model.num_timesteps = summary["env_steps"]
+    return {"warm_start": summary}
 
 
 class PPOTeacher:

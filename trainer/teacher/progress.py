@@ -1,5 +1,6 @@
-"""Training bookkeeping for the PPO teacher: CSV learning curve, wall-clock budget, periodic checkpoints,
-and the learning-curve PNG (success rate and return vs environment steps)."""
+"""Training bookkeeping for the PPO teacher: CSV learning curve (DAgger rounds, then one row per PPO
+rollout), wall-clock budget, periodic checkpoints, and the learning-curve PNG (success rate and return vs
+environment steps)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,20 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from tqdm import tqdm
 
-CSV_FIELDS = ("env_steps", "wall_s", "episodes", "mean_return", "success_rate", "mean_length", "steps_per_s")
+CSV_FIELDS = ("stage", "env_steps", "wall_s", "episodes", "mean_return", "success_rate", "mean_length",
+              "steps_per_s")
+"""``stage``: expert (its own episodes), daggerN (learner round N, deterministic) or ppo (training rollouts,
+stochastic actions). ``steps_per_s`` is blank for the warm-start rows."""
+
+
+def append_row(csv_path: Path, row: dict) -> None:
+    """One learning-curve row (fields missing from ``row`` stay blank); writes the header first."""
+    new = not csv_path.exists()
+    with csv_path.open("a", newline="") as f:
+        writer = csv.DictWriter(f, CSV_FIELDS, extrasaction="ignore")
+        if new:
+            writer.writeheader()
+        writer.writerow({k: round(v, 4) if isinstance(v, float) else v for k, v in row.items()})
 
 
 class Progress(BaseCallback):
@@ -36,9 +50,6 @@ class Progress(BaseCallback):
 
     def _on_training_start(self) -> None:
         self._last_save = self.num_timesteps
-        if not self.csv_path.exists():
-            with self.csv_path.open("w", newline="") as f:
-                csv.writer(f).writerow(CSV_FIELDS)
 
     def _on_rollout_start(self) -> None:
         self._t_rollout, self._steps_rollout = time.perf_counter(), self.num_timesteps
@@ -50,10 +61,11 @@ class Progress(BaseCallback):
     def _on_rollout_end(self) -> None:
         eps, self._episodes = self._episodes, []
         rate = (self.num_timesteps - self._steps_rollout) / max(time.perf_counter() - self._t_rollout, 1e-9)
-        means = [float(np.mean([e[k] for e in eps])) if eps else float("nan") for k in ("r", "success", "l")]
-        row = (self.num_timesteps, round(self.wall_s, 1), len(eps), *means, round(rate, 1))
-        with self.csv_path.open("a", newline="") as f:
-            csv.writer(f).writerow(row)
+        mean = lambda k: float(np.mean([e[k] for e in eps])) if eps else float("nan")  # noqa: E731
+        append_row(self.csv_path, {"stage": "ppo", "env_steps": self.num_timesteps, "wall_s": self.wall_s,
+                                   "episodes": len(eps), "mean_return": mean("r"),
+                                   "success_rate": mean("success"), "mean_length": mean("l"),
+                                   "steps_per_s": rate})
         if self.num_timesteps - self._last_save >= self.every:
             self.save()
             self._last_save = self.num_timesteps
@@ -84,7 +96,7 @@ class TqdmSteps(BaseCallback):
 def read_curve(csv_path: Path) -> dict[str, np.ndarray]:
     with csv_path.open() as f:
         rows = list(csv.DictReader(f))
-    return {k: np.array([float(r[k]) for r in rows]) for k in CSV_FIELDS}
+    return {k: np.array([float(r[k] or "nan") for r in rows]) for k in CSV_FIELDS if k != "stage"}
 
 
 def plot_curves(curves: dict[str, Path], png: Path, smooth: int = 5) -> None:

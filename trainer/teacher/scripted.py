@@ -5,6 +5,9 @@ narrowest horizontal axis), descend, close, lift (object centre to p_target), ho
 solves damped-least-squares inverse kinematics on MuJoCo Jacobians of a kinematic copy of the arm for a
 waypoint at most ``max_step_m`` from the hand, and emits the env action a = (q_ik - q) / s, scaled down
 as a whole to fit [-1, 1], plus the gripper command: the same 8-d actions a learned teacher emits at 10 Hz.
+
+``ReactiveExpert`` is the same planner without phase memory (its phase is read off each observation): the
+labeller of the PPO teacher's DAgger warm start (``trainer.teacher.warmstart``).
 """
 
 from __future__ import annotations
@@ -20,6 +23,11 @@ from hil_sim.world import HOME_Q, TABLE_Z, World
 _OBJ = slice(25, 28)
 _Goal = tuple[np.ndarray, np.ndarray, float]
 _OBJ_QUAT = slice(28, 32)
+_FINGERS, _FINGER_VEL, _GRIPPER = slice(7, 9), slice(16, 18), 39
+_ANGLE_TOL = 0.05
+"""Hand angle from the goal orientation that counts as arrived (rad)."""
+_SHUT_M = 0.004
+"""Finger opening (both slides) below which a closed gripper holds nothing."""
 
 
 @dataclass(frozen=True)
@@ -41,6 +49,13 @@ class ExpertConfig:
     """Steps to wait for the fingers to close before lifting."""
     pos_tol_m: float = 0.004
     """How close the hand must be to the pre-grasp and grasp points: fingers clear an object by ~6 mm."""
+    funnel_radius_m: float = 0.02
+    """ReactiveExpert: horizontal offset from the grasp point at which the hand must be at the pre-grasp
+    height; nearer, it may be proportionally lower."""
+    funnel_rad: float = 0.3
+    """ReactiveExpert: the same for the hand's angle from the grasp orientation (the two add up)."""
+    finger_still_mps: float = 0.003
+    """ReactiveExpert: finger speed under which a closed gripper has finished closing."""
     ik_iters: int = 15
     ik_damping: float = 0.05
     null_gain: float = 0.05
@@ -91,14 +106,19 @@ class ScriptedExpert:
         delta[6] = np.clip(delta[6], -1.0, 1.0)
         return np.append(delta, gripper).astype(np.float32)
 
-    def _plan(self, priv: np.ndarray, ee: np.ndarray, rot: np.ndarray) -> _Goal:
-        """Goal position and hand frame for this step, and the gripper command."""
+    def _grasp_pose(self, priv: np.ndarray, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Grasp-site position and top-down hand frame of the grasp on the object as it lies now."""
         c = self.config
         obj = priv[_OBJ]
         height = max(obj[2] + c.pad_offset_m, obj[2] + self._extent[2] - c.palm_clearance_m,
                      TABLE_Z + c.tip_clearance_m)
-        grasp = np.array([obj[0], obj[1], height])
-        rot_goal = _top_down(self._grasp_yaw(priv[_OBJ_QUAT], rot))
+        return np.array([obj[0], obj[1], height]), _top_down(self._grasp_yaw(priv[_OBJ_QUAT], rot))
+
+    def _plan(self, priv: np.ndarray, ee: np.ndarray, rot: np.ndarray) -> _Goal:
+        """Goal position and hand frame for this step, and the gripper command."""
+        c = self.config
+        obj = priv[_OBJ]
+        grasp, rot_goal = self._grasp_pose(priv, rot)
         self._count += 1
         if self._phase == Phase.APPROACH:
             goal = grasp + [0.0, 0.0, c.approach_height_m]
@@ -129,6 +149,46 @@ class ScriptedExpert:
         axis = mat.reshape(3, 3)[:, 0 if self._extent[0] <= self._extent[1] else 1]
         yaw = np.arctan2(axis[1], axis[0])
         return now + (yaw - now + np.pi / 2) % np.pi - np.pi / 2
+
+
+class ReactiveExpert(ScriptedExpert):
+    """The same planner with its phase read off the current observation instead of remembered: open ->
+    down a funnel onto the grasp point (approach, descend); at it -> close; closed on the object -> lift
+    (or wait while the fingers still move); closed on nothing -> open and start again.
+
+    A memoryless policy can represent this map (the phase machine's hidden state is what made cloning
+    ``ScriptedExpert`` fail), and it labels any state, the learner's included, as DAgger needs."""
+
+    def _plan(self, priv: np.ndarray, ee: np.ndarray, rot: np.ndarray) -> _Goal:
+        c = self.config
+        grasp, rot_goal = self._grasp_pose(priv, rot)
+        if priv[_GRIPPER] > 0 and _holding(priv, ee):
+            if np.abs(priv[_FINGER_VEL]).max() > c.finger_still_mps:
+                self._phase = Phase.CLOSE
+                return ee, rot, 1.0
+            self._phase = Phase.LIFT
+            return self._target + ee - priv[_OBJ], rot, 1.0
+        rel = ee - grasp
+        angle = np.linalg.norm(_rotation_error(rot, rot_goal))
+        offset = np.linalg.norm(rel[:2])
+        if offset < c.pos_tol_m and rel[2] < c.pos_tol_m and angle < _ANGLE_TOL:
+            self._phase = Phase.CLOSE
+            return ee, rot, 1.0
+        # A funnel over the grasp point instead of a switch between "approach" and "descend": the hand
+        # may be lower the better it is aligned (fully down within the arrival tolerances), so the labels
+        # change smoothly with the state.
+        misalignment = (max(0.0, offset - c.pos_tol_m) / c.funnel_radius_m
+                        + max(0.0, angle - _ANGLE_TOL) / c.funnel_rad)
+        self._phase = Phase.DESCEND if misalignment < 1.0 else Phase.APPROACH
+        return grasp + [0.0, 0.0, c.approach_height_m * min(1.0, misalignment)], rot_goal, -1.0
+
+
+def _holding(priv: np.ndarray, ee: np.ndarray) -> bool:
+    """The object is between the fingers (centre at most a fingertip's length, 7 cm, below the grasp site,
+    fingers stopped short of shut)."""
+    rel = priv[_OBJ] - ee
+    return bool(np.linalg.norm(rel[:2]) < 0.03 and -0.07 < rel[2] < 0.03
+                and priv[_FINGERS].sum() > _SHUT_M)
 
 
 class _Kinematics:
@@ -186,7 +246,7 @@ def _top_down(yaw: float) -> np.ndarray:
 
 def _arrived(pos: np.ndarray, goal: np.ndarray, rot: np.ndarray, rot_goal: np.ndarray, tol: float) -> bool:
     angle = np.linalg.norm(_rotation_error(rot, rot_goal))
-    return bool(np.linalg.norm(goal - pos) < tol and angle < 0.05)
+    return bool(np.linalg.norm(goal - pos) < tol and angle < _ANGLE_TOL)
 
 
 def _clip_norm(v: np.ndarray, limit: float) -> np.ndarray:
