@@ -66,6 +66,9 @@ class LoopConfig:
     """Hold this long for the driver's state to come back (e.g. a driver restart) before exiting."""
     policy_give_up_s: float = 1.0
     """Hold this long while every inference gives non-finite actions before exiting."""
+    max_frame_age_s: float = 0.1
+    """A frame already older than this when it arrives was held up on the way and is dropped. Not tied to
+    the control period: a D4xx frame arrives 30-40 ms after exposure, more than a 30 Hz period."""
     work_budget: float = 0.8
     """Share of the period between a tick's frame cutoff and its deadline: preprocessing + inference +
     send must fit in it. It costs no frame age (work starts on the frame's arrival), only sets how late
@@ -73,7 +76,7 @@ class LoopConfig:
 
     def __post_init__(self) -> None:
         for name in ("rate_hz", "validity_periods", "startup_timeout_s", "camera_give_up_s", "robot_stale_s",
-                     "robot_give_up_s", "policy_give_up_s"):
+                     "robot_give_up_s", "policy_give_up_s", "max_frame_age_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"loop setting {name} must be positive, got {getattr(self, name)}")
         if not 0 < self.work_budget < 1:
@@ -281,10 +284,10 @@ class ControlLoop:
         return self._frame
 
     def _take(self, frame: Frame | None) -> None:
-        """Accept a polled frame unless it was already older than one period when it arrived."""
+        """Accept a polled frame unless it was already too old when it arrived."""
         if frame is None:
             return
-        if frame.t_receive - frame.t_capture > self.config.period:
+        if frame.t_receive - frame.t_capture > self.config.max_frame_age_s:
             self.counts["stale_frames"] += 1
             return
         self._frame = frame

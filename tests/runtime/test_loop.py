@@ -112,6 +112,13 @@ def test_frames_that_arrive_stale_are_not_used():
     assert code == EXIT_CAMERA and ticks == [] and loop.counts["stale_frames"] >= 9
 
 
+def test_frame_age_limit_is_its_own_setting_not_the_control_period():
+    # 70 ms old frames: younger than the 100 ms period, older than the 50 ms limit asked for
+    code, ticks, _, loop, _, _ = _run(camera=lambda c: FakeCamera(c, P, age=0.07), startup_timeout_s=1.0,
+                                      max_frame_age_s=0.05)
+    assert code == EXIT_CAMERA and ticks == [] and loop.counts["stale_frames"] >= 9
+
+
 def test_nan_action_holds_and_recovers():
     code, ticks, commands, _, _, _ = _run(policy=lambda c: FakePolicy(c, nan_calls={2}, exec_horizon=3),
                                           seconds=1.0)
