@@ -20,6 +20,30 @@ def test_bad_real_dir_is_a_one_line_error(tmp_path, capsys):
     assert capsys.readouterr().err.strip() == f"error: no .npz depth frames in {tmp_path}"
 
 
+def test_bad_inputs_are_one_line_errors_for_every_command(tmp_path, capsys, tiny_model):
+    """No frames, NaNs, a store at another resolution: exit 2 and one `error:` line naming the problem."""
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    nan = tmp_path / "nan"
+    nan.mkdir()
+    depth = np.full((240, 320), 0.8, np.float32)
+    depth[5, 5] = np.nan
+    np.savez(nan / "f.npz", depth_m=depth)
+    import zarr
+
+    zarr.open_group(str(tmp_path / "s.zarr"), mode="w").create_array("data/depth", shape=(2, 48, 64),
+                                                                       dtype="uint16")[:] = 900
+    cases = [(["metrics", "--real", str(empty), "--model", ""], "no .npz depth frames"),
+             (["metrics", "--real", str(nan), "--subset", "all", "--model", ""], "depth holds 1 NaN/inf"),
+             (["generate", "--demos", str(tmp_path / "s.zarr"), "--model", str(tiny_model)],
+              "the model's resolution"),
+             (["generate", "--demos", str(tmp_path / "none.zarr")], "no demo store")]
+    for argv, message in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], (argv, err)
+
+
 def _real_dir(path):
     """Three D435-like frames and one from another sensor, with a manifest, like shared/data/real_depth."""
     import json
@@ -42,14 +66,17 @@ def test_metrics_cli_end_to_end(tmp_path, tiny_demos, tiny_model):
     real = _real_dir(tmp_path)
     out = tmp_path / "m" / "metrics.json"
     args = ["metrics", "--real", str(real), "--subset", "all", "--json", str(out), "--model", str(tiny_model),
-            "--demos", str(tiny_demos), "--crops", "4", "--sim-frames", "12", "--steps", "2"]
+            "--demos", str(tiny_demos), "--crops", "4", "--sim-frames", "12", "--steps", "2",
+            "--bootstrap", "3", "--threads", "1"]  # 1: the setting is process-wide and later tests inherit it
     assert main(args) == 0
     res = json.loads(out.read_text())
     assert set(res["sources"]) == {"real_other_sensors", "gt", "randnoise", "inpaint", "ddg_nograft", "ddg"}
     for s in res["sources"].values():
         assert np.isfinite(s["fid"]) and np.isfinite(s["kid"]) and 0 <= s["hole_fraction"] <= 1
     assert res["sources"]["randnoise"]["hole_fraction"] > res["sources"]["gt"]["hole_fraction"]
-    assert (out.parent / "grid.png").stat().st_size > 0 and (out.parent / "tsne.png").stat().st_size > 0
+    lo, hi = res["sources"]["gt"]["fid_ci95"]
+    assert lo <= hi and res["sources"]["gt"]["kid_ci95"][0] <= res["sources"]["gt"]["kid_ci95"][1]
+    assert all((out.parent / f).stat().st_size > 0 for f in ("grid.png", "tsne.png", "holes.png"))
 
 
 def test_fit_help_shows_field_docs():

@@ -57,6 +57,25 @@ def test_mismatched_resolutions_within_a_sequence_are_a_clear_error(tmp_path):
         load_real_dir(tmp_path, "all")
 
 
+def test_directory_without_d4xx_frames_is_a_clear_error(tmp_path):
+    _save(tmp_path / "k.npz", depth_m=np.ones((120, 160), np.float32))
+    entry = {"file": "k.npz", "sensor": "Kinect v1"}
+    (tmp_path / "MANIFEST.json").write_text(json.dumps({"frames": [entry]}))
+    assert len(load_real_dir(tmp_path, "all")) == 1
+    with pytest.raises(RealDataError, match="no d4xx frames in"):
+        load_real_dir(tmp_path)
+
+
+def test_infinite_and_negative_depth_are_clear_errors(tmp_path):
+    for name, value in (("inf", np.inf), ("neg", -0.5)):
+        d = np.ones((120, 160), np.float32)
+        d[0, 0] = value
+        _save(tmp_path / f"{name}.npz", depth_m=d)
+        with pytest.raises(RealDataError, match=f"{name}.npz: depth holds"):
+            load_real_dir(tmp_path, "all")
+        (tmp_path / f"{name}.npz").unlink()
+
+
 def test_held_out_sources_are_refused(tmp_path):
     _save(tmp_path / "m.npz", depth_m=np.ones((120, 160), np.float32))
     entry = {"file": "m.npz", "source_repo": "NVlabs/M2T2", "sensor": "Intel RealSense D415"}

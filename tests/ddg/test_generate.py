@@ -5,6 +5,7 @@ import pytest
 import zarr
 
 from trainer.ddg.generate import DemoStoreError, GenerateConfig, generate
+from trainer.ddg.sample import FrameError
 
 
 def _run(store, model, **kw):
@@ -40,8 +41,10 @@ def test_resume_skips_finished_chunks(tiny_demos, tiny_model):
 
 def test_resume_with_other_settings_is_refused(tiny_demos, tiny_model):
     _run(tiny_demos, tiny_model)
-    with pytest.raises(DemoStoreError, match="already holds DDG depth"):
-        generate(GenerateConfig(demos=str(tiny_demos), model=str(tiny_model), steps=5, chunk=8))
+    assert "eta" not in zarr.open_group(str(tiny_demos), mode="r").attrs["ddg"]  # older stores still resume
+    for other in ({"steps": 5}, {"steps": 2, "eta": 1.0}):
+        with pytest.raises(DemoStoreError, match="already holds DDG depth"):
+            generate(GenerateConfig(demos=str(tiny_demos), model=str(tiny_model), chunk=8, **other))
 
 
 def test_bad_stores_and_shards(tmp_path, tiny_model):
@@ -54,3 +57,11 @@ def test_bad_stores_and_shards(tmp_path, tiny_model):
         GenerateConfig(shard="2").shard_pair()
     with pytest.raises(DemoStoreError, match="0 <= i < n"):
         GenerateConfig(shard="3/2").shard_pair()
+
+
+def test_store_at_another_resolution_is_refused_before_any_work(tmp_path, tiny_model):
+    root = zarr.open_group(str(tmp_path / "big.zarr"), mode="w")
+    root.create_array("data/depth", shape=(4, 120, 160), dtype="uint16")[:] = 900
+    with pytest.raises(FrameError, match=r"\[N, 96, 128\] \(the model's resolution\), got uint16 \[4, 120"):
+        _run(tmp_path / "big.zarr", tiny_model)
+    assert "data/depth_ddg" not in zarr.open_group(str(tmp_path / "big.zarr"), mode="r")

@@ -2,6 +2,7 @@ import numpy as np
 
 from trainer.ddg.features import RandomEncoder, encoder_input, features, fid, kid
 from trainer.ddg.holestats import hole_stats
+from trainer.ddg.metrics import bootstrap_ci
 
 from .conftest import scene
 
@@ -12,6 +13,26 @@ def test_fid_and_kid_separate_distributions():
     shifted = rng.standard_normal((300, 16)) + 1.0
     assert fid(a, b) < 0.5 < fid(a, shifted)
     assert abs(kid(a, b)) < 0.02 < kid(a, shifted)
+
+
+def test_fid_matches_the_matrix_square_root_formula():
+    from scipy import linalg
+
+    rng = np.random.default_rng(4)
+    a, b = rng.standard_normal((60, 5)), rng.standard_normal((80, 5)) @ rng.standard_normal((5, 5)) + 0.3
+    ca, cb = np.cov(a, rowvar=False), np.cov(b, rowvar=False)
+    ref = np.sum((a.mean(0) - b.mean(0)) ** 2) + np.trace(ca + cb - 2 * linalg.sqrtm(ca @ cb).real)
+    assert abs(fid(a, b) - ref) < 1e-6 * max(1.0, ref)
+
+
+def test_bootstrap_interval_covers_the_spread():
+    rng = np.random.default_rng(0)
+    a, b = rng.standard_normal((120, 8)), rng.standard_normal((90, 8)) + 0.5
+    groups_b = np.repeat(np.arange(30), 3)  # 3 rows per "frame"
+    ci = bootstrap_ci(a, np.arange(120), b, groups_b, replicates=40)
+    (flo, fhi), (klo, khi) = ci["fid_ci95"], ci["kid_ci95"]
+    assert flo < fid(a, b) < fhi and klo < khi and fhi - flo > 0.05
+    assert bootstrap_ci(a, np.arange(120), b, groups_b, replicates=0) == {}
 
 
 def test_encoder_is_fixed_and_sees_holes():

@@ -2,7 +2,15 @@ import numpy as np
 import pytest
 
 from trainer.ddg.model import ModelDirError, UNetConfig, ddim_scheduler, load_config
-from trainer.ddg.sample import Generator, OnnxEps, TorchEps, ddim_sample, frame_noise
+from trainer.ddg.sample import (
+    SESSION_MODES,
+    FrameError,
+    Generator,
+    OnnxEps,
+    TorchEps,
+    ddim_sample,
+    frame_noise,
+)
 
 from .conftest import scene
 
@@ -64,3 +72,28 @@ def test_bad_step_count_and_missing_model(tmp_path):
         ddim_scheduler(UNetConfig(), 0)
     with pytest.raises(ModelDirError, match="no config.json"):
         load_config(tmp_path)
+
+
+def test_generator_refuses_frames_it_cannot_take(tiny_model, sims):
+    gen = Generator(tiny_model, steps=1)
+    for bad in (sims[:, :80], sims.astype(np.float32), sims[0]):
+        with pytest.raises(FrameError, match="model's resolution"):
+            gen(bad, np.arange(len(bad)))
+
+
+@pytest.mark.parametrize("mode", SESSION_MODES)
+def test_session_modes_give_the_same_noise_prediction(tiny_model, mode):
+    x = np.random.default_rng(0).standard_normal((5, 2, 96, 128)).astype(np.float32)
+    ref = OnnxEps(tiny_model, threads=1, mode="intra")(x, 300)
+    assert np.abs(OnnxEps(tiny_model, threads=2, mode=mode)(x, 300) - ref).max() < 1e-5
+    with pytest.raises(ValueError, match="session mode"):
+        OnnxEps(tiny_model, mode="turbo")
+
+
+def test_stochastic_sampling_is_seeded_per_frame(tiny_model, sims):
+    """eta > 0 draws fresh noise each step; it must still come from the frame's own (seed, index)."""
+    _, together = Generator(tiny_model, steps=3, seed=0, eta=1.0)(sims, np.array([10, 11, 12]))
+    _, alone = Generator(tiny_model, steps=3, seed=0, eta=1.0)(sims[1:2], np.array([11]))
+    _, ddim = Generator(tiny_model, steps=3, seed=0)(sims, np.array([10, 11, 12]))
+    assert np.array_equal(together[1], alone[0])
+    assert not np.array_equal(together, ddim)

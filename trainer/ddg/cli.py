@@ -15,6 +15,8 @@ SUBCOMMANDS = {
                  "add depth_ddg / depth_ddg_nograft to a demo store"),
     "metrics": ("trainer.ddg.metrics", "MetricsConfig", "run_metrics",
                 "realism of each depth source vs held-out real frames (Table I)"),
+    "bench": ("trainer.ddg.bench", "BenchConfig", "bench",
+              "generation throughput per session mode, batch and DDIM step count"),
 }
 
 

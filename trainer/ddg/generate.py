@@ -32,6 +32,8 @@ class GenerateConfig:
     """DDG model directory."""
     steps: int = 10
     """DDIM steps."""
+    eta: float = 0.0
+    """DDIM eta: 0 = deterministic DDIM, 1 = DDPM-like fresh noise each step (per-frame seeded)."""
     shard: str = "0/1"
     """This worker's share, i/n: chunks with index % n == i."""
     batch: int = 64
@@ -41,7 +43,9 @@ class GenerateConfig:
     seed: int = 0
     """Noise seed (per frame: seed, frame index)."""
     threads: int = 2
-    """onnxruntime intra-op threads."""
+    """CPU cores for onnxruntime."""
+    mode: str = "split"
+    """How a batch is spread over the cores: split | intra | intra_spin (see ``sample.SESSION_MODES``)."""
 
     def shard_pair(self) -> tuple[int, int]:
         try:
@@ -58,10 +62,12 @@ def generate(cfg: GenerateConfig) -> dict:
     root = _open(cfg.demos)
     depth = root["data/depth"]
     n = depth.shape[0]
-    outs, done = _outputs(root, cfg, depth.shape)
     i, shards = cfg.shard_pair()
+    gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, mode=cfg.mode,
+                    eta=cfg.eta)
+    gen.check_frames(depth)
+    outs, done = _outputs(root, cfg, depth.shape)
     todo = [k for k in range(done.shape[0]) if k % shards == i and not done[k]]
-    gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads)
     frames, t0 = 0, time.perf_counter()
     bar = tqdm(todo, desc=f"ddg generate shard {cfg.shard}", unit="chunk")
     for k in bar:
@@ -77,7 +83,7 @@ def generate(cfg: GenerateConfig) -> dict:
     seconds = time.perf_counter() - t0
     stats = {"frames": frames, "seconds": round(seconds, 2), "fps": round(frames / max(seconds, 1e-9), 2)}
     print(f"generated {frames} frames in {seconds:.1f} s: {stats['fps']} frames/s "
-          f"(DDIM {cfg.steps} steps, batch {cfg.batch}, {cfg.threads} threads, shard {cfg.shard})")
+          f"(DDIM {cfg.steps} steps, batch {cfg.batch}, {cfg.threads} cores {cfg.mode}, shard {cfg.shard})")
     return stats
 
 
@@ -95,7 +101,7 @@ def _open(path: str) -> zarr.Group:
 
 def _outputs(root: zarr.Group, cfg: GenerateConfig, shape: tuple[int, ...]):
     settings = {"model": str(Path(cfg.model).resolve().name), "steps": cfg.steps, "seed": cfg.seed,
-                "chunk": cfg.chunk}
+                "chunk": cfg.chunk, **({"eta": cfg.eta} if cfg.eta else {})}  # stores made before eta resume
     previous = root.attrs.get("ddg")
     if previous is not None and previous != settings:
         raise DemoStoreError(f"store already holds DDG depth made with {previous}, not {settings}; "

@@ -1,10 +1,14 @@
 """``python -m trainer ddg metrics``: realism of each depth source against real captures (paper Table I).
 
 Reference: held-out D4xx frames of --real (``data.HOLDOUT_FRAMES``; all D4xx frames with --subset all), each
-cut into random policy-resolution crops. Sources: ``gt`` (sim), ``randnoise`` (sim), ``inpaint`` (as in the
-paper, Sim GT judged against inpainted real depth), ``ddg_nograft`` and ``ddg`` (sim through the generator),
-plus two real references: ``real_train`` (D4xx training frames: the floor a perfect generator could reach)
-and ``real_other_sensors`` (the non-D4xx captures: how far other sensors' artifacts are from a D4xx's).
+cut into random policy-resolution crops. Every judged set has ``sim_frames`` frames, so FID's small-sample
+bias is the same for all of them. The 95% intervals come from a bootstrap that resamples the reference by
+whole frame (its crops are not independent) and the judged set by frame.
+
+Sources: ``gt`` (sim), ``randnoise`` (sim), ``inpaint`` (as in the paper, Sim GT judged against inpainted
+real depth), ``ddg_nograft`` and ``ddg`` (sim through the generator), plus two real references:
+``real_train`` (D4xx training frames: the floor a perfect generator could reach) and ``real_other_sensors``
+(the non-D4xx captures: how far other sensors' artifacts are from a D4xx's).
 """
 
 from __future__ import annotations
@@ -14,12 +18,13 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from .baselines import DEFAULT_MODEL, inpaint, randnoise
 from .data import RealDataError, load_real_dir, policy_crop, split
 from .features import RandomEncoder, features, fid, kid
 from .holestats import hole_stats
-from .plots import plot_grid, plot_tsne
+from .plots import plot_grid, plot_holes, plot_tsne
 from .simframes import from_demos, rendered
 
 
@@ -41,58 +46,100 @@ class MetricsConfig:
     """Simulated frames per source."""
     steps: int = 10
     """DDIM steps for the DDG sources."""
+    eta: float = 0.0
+    """DDIM eta for the DDG sources (0 = deterministic DDIM, 1 = DDPM-like)."""
     seed: int = 0
     """Seed for crops, noise and generation."""
+    bootstrap: int = 100
+    """Bootstrap replicates for the FID/KID 95% intervals (0 = none)."""
+    threads: int = 2
+    """torch and onnxruntime CPU threads."""
 
 
 def run_metrics(cfg: MetricsConfig) -> dict:
+    torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed)
-    ref, extra_real = _real_sets(cfg, rng)
+    (ref, ref_groups), extra_real = _real_sets(cfg, rng)
     sim = from_demos(cfg.demos, cfg.sim_frames) if cfg.demos else rendered(cfg.sim_frames, cfg.seed)
-    frames = {**extra_real, "gt": sim, "randnoise": np.stack([randnoise(d, rng) for d in sim]),
-              "inpaint": sim, **_ddg_sources(cfg, sim)}
+    sim_groups = np.arange(len(sim))
+    noisy = np.stack([randnoise(d, rng) for d in sim])
+    frames = {**extra_real, **{k: (v, sim_groups) for k, v in (
+        ("gt", sim), ("randnoise", noisy), ("inpaint", sim), *_ddg_sources(cfg, sim).items())}}
     judged_against = {"inpaint": np.stack([inpaint(d, rng) for d in ref])}
     enc = RandomEncoder()
     ref_feats = features(ref, enc)
-    result = {"reference": {"frames": len(ref), **hole_stats(ref)}, "sources": {}, "config": asdict(cfg)}
+    result = {"reference": {"frames": len(ref), "real_frames": len(np.unique(ref_groups)), **hole_stats(ref)},
+              "sources": {}, "config": asdict(cfg)}
     feats = {}
-    for name, fr in frames.items():
+    for name, (fr, groups) in frames.items():
         feats[name] = features(fr, enc)
         against = features(judged_against[name], enc) if name in judged_against else ref_feats
-        result["sources"][name] = {"fid": fid(feats[name], against), "kid": kid(feats[name], against),
+        ci = bootstrap_ci(feats[name], groups, against, ref_groups, cfg.bootstrap, cfg.seed)
+        result["sources"][name] = {"fid": fid(feats[name], against), "kid": kid(feats[name], against), **ci,
                                    "vs": "real_inpaint" if name in judged_against else "real",
                                    "frames": len(fr), **hole_stats(fr)}
     out = Path(cfg.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     print(table(result))
-    plot_grid({"real": ref, **{k: v for k, v in frames.items() if k != "inpaint"},
+    plot_grid({"real": ref, **{k: v for k, (v, _) in frames.items() if k != "inpaint"},
                "real_inpaint": judged_against["inpaint"]}, out.with_name("grid.png"))
+    plot_holes({"real": ref, **{k: v for k, (v, _) in frames.items() if k != "inpaint"}},
+               {"real": result["reference"], **result["sources"]}, out.with_name("holes.png"))
     plot_tsne(ref_feats, {k: v for k, v in feats.items() if k != "inpaint"}, out.with_name("tsne.png"))
     return result
 
 
+def bootstrap_ci(a: np.ndarray, a_groups: np.ndarray, b: np.ndarray, b_groups: np.ndarray, replicates: int,
+                 seed: int = 0) -> dict:
+    """95% percentile intervals of FID and KID, resampling whole groups (frames) of both sets."""
+    if replicates <= 0:
+        return {}
+    rng = np.random.default_rng(seed)
+    draws = []
+    for _ in range(replicates):
+        ia, ib = _resample(a_groups, rng), _resample(b_groups, rng)
+        draws.append((fid(a[ia], b[ib]), kid(a[ia], b[ib], subsets=10)))
+    lo, hi = np.percentile(draws, [2.5, 97.5], axis=0)
+    return {"fid_ci95": [float(lo[0]), float(hi[0])], "kid_ci95": [float(lo[1]), float(hi[1])]}
+
+
+def _resample(groups: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Row indices of a bootstrap sample that draws whole groups with replacement."""
+    ids = np.unique(groups)
+    return np.concatenate([np.flatnonzero(groups == g) for g in rng.choice(ids, len(ids))])
+
+
 def table(result: dict) -> str:
     """Table I analogue plus hole statistics, one row per source."""
-    head = (f"{'source':<20}{'FID':>9}{'KIDx100':>9}{'holes%':>8}{'p50 size':>9}{'edge/flat':>10}"
-            f"{'grad p90':>9}")
+    head = (f"{'source':<20}{'FID':>9}{'FID 95% CI':>16}{'KIDx100':>9}{'KIDx100 95% CI':>17}{'holes%':>8}"
+            f"{'p50 size':>9}{'edge/flat':>10}{'grad p90':>9}")
     rows = [head, "-" * len(head)]
     ref = result["reference"]
-    rows.append(_row("real (reference)", None, None, ref))
+    rows.append(_row("real (reference)", ref))
     for name, s in result["sources"].items():
-        label = "inpaint (gt vs inp.)" if s["vs"] == "real_inpaint" else name
-        rows.append(_row(label, s["fid"], s["kid"], s))
+        rows.append(_row("inpaint (gt vs inp.)" if s["vs"] == "real_inpaint" else name, s))
     return "\n".join(rows)
 
 
-def _row(name: str, f: float | None, k: float | None, s: dict) -> str:
+def _row(name: str, s: dict) -> str:
     ratio = s["edge_flat_ratio"]
-    return (f"{name:<20}{'' if f is None else f'{f:9.2f}':>9}{'' if k is None else f'{100 * k:9.3f}':>9}"
+    fid_, kid_ = (f"{s['fid']:9.2f}", f"{100 * s['kid']:9.3f}") if "fid" in s else ("", "")
+    fid_ci, kid_ci = (_interval(s.get("fid_ci95"), 1), _interval(s.get("kid_ci95"), 100))
+    return (f"{name:<20}{fid_:>9}{fid_ci:>16}{kid_:>9}{kid_ci:>17}"
             f"{100 * s['hole_fraction']:8.2f}{s['hole_size_px_p50_p90'][0]:9.1f}"
             f"{'-' if ratio is None else f'{ratio:.1f}':>10}{s['grad_mm_per_px_p50_p90_p99'][1]:9.1f}")
 
 
-def _real_sets(cfg: MetricsConfig, rng: np.random.Generator) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def _interval(ci: list[float] | None, scale: float) -> str:
+    return f"[{scale * ci[0]:.2f}, {scale * ci[1]:.2f}]" if ci else ""
+
+
+Crops = tuple[np.ndarray, np.ndarray]
+"""(uint16 crops [N, H, W], the real frame each crop came from [N])."""
+
+
+def _real_sets(cfg: MetricsConfig, rng: np.random.Generator) -> tuple[Crops, dict[str, Crops]]:
     if cfg.subset not in ("holdout", "all"):
         raise RealDataError(f"--subset must be holdout or all, got {cfg.subset!r}")
     every = load_real_dir(cfg.real, "all")
@@ -105,12 +152,14 @@ def _real_sets(cfg: MetricsConfig, rng: np.random.Generator) -> tuple[np.ndarray
     reference = held if cfg.subset == "holdout" else d4xx
     extra = {"real_train": train if cfg.subset == "holdout" else [],
              "real_other_sensors": [f for f in every if f.sensor != "d4xx"]}
-    crops = {name: _crops(fs, cfg.crops, rng) for name, fs in extra.items() if fs}
-    return _crops(reference, cfg.crops, rng), crops
+    crops = {name: _crops(fs, rng.integers(0, len(fs), cfg.sim_frames), rng)
+             for name, fs in extra.items() if fs}
+    return _crops(reference, np.repeat(np.arange(len(reference)), cfg.crops), rng), crops
 
 
-def _crops(frames, per_frame: int, rng: np.random.Generator) -> np.ndarray:
-    return np.stack([policy_crop(f.depth_mm, rng)[0] for f in frames for _ in range(per_frame)])
+def _crops(frames, which: np.ndarray, rng: np.random.Generator) -> Crops:
+    """One random policy crop of ``frames[i]`` for each i in ``which``."""
+    return np.stack([policy_crop(frames[i].depth_mm, rng)[0] for i in which]), which
 
 
 def _ddg_sources(cfg: MetricsConfig, sim: np.ndarray) -> dict[str, np.ndarray]:
@@ -118,7 +167,7 @@ def _ddg_sources(cfg: MetricsConfig, sim: np.ndarray) -> dict[str, np.ndarray]:
         return {}
     from .sample import Generator
 
-    gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed)
+    gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, eta=cfg.eta)
     parts = [gen(sim[i:i + 64], np.arange(i, min(len(sim), i + 64))) for i in range(0, len(sim), 64)]
     return {"ddg_nograft": np.concatenate([p[1] for p in parts]),
             "ddg": np.concatenate([p[0] for p in parts])}

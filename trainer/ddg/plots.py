@@ -1,4 +1,5 @@
-"""PNG figures of the realism metrics: a grid of depth images per source and a t-SNE like paper Fig. 4."""
+"""PNG figures of the realism metrics: a grid of depth images per source, hole statistics side by side, and a
+t-SNE like paper Fig. 4."""
 
 from __future__ import annotations
 
@@ -50,6 +51,41 @@ def plot_tsne(real: np.ndarray, sources: dict[str, np.ndarray], path: Path, seed
         ax.set_xticks([])
         ax.set_yticks([])
     axes[0, 0].legend(fontsize=6)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_holes(frames: dict[str, np.ndarray], stats: dict[str, dict], path: Path) -> None:
+    """Hole statistics per source (``holestats.hole_stats`` entries) side by side: per-frame hole fraction,
+    hole-size histogram, hole rate near depth edges vs in flat regions, holes per frame."""
+    from .holestats import SIZE_BINS
+
+    names = list(frames)
+    colours = matplotlib.colormaps["tab10"](np.arange(len(names)) % 10)
+    fig, ax = plt.subplots(1, 4, figsize=(17, 3.6))
+    ax[0].boxplot([100 * (f == 0).mean((1, 2)) for f in frames.values()], showfliers=False)
+    ax[0].set_xticks(range(1, len(names) + 1), names, rotation=45, ha="right", fontsize=7)
+    ax[0].set(ylabel="hole fraction per frame (%)", title="hole fraction")
+    bins = zip(SIZE_BINS[:-1], SIZE_BINS[1:], strict=True)
+    labels = [f"{lo}-{hi - 1}" if hi - 1 > lo else str(lo) for lo, hi in bins]
+    labels.append(f">{SIZE_BINS[-1] - 1}")
+    width = 0.8 / len(names)
+    for i, name in enumerate(names):
+        x = np.arange(len(labels)) + (i - len(names) / 2 + 0.5) * width
+        ax[1].bar(x, stats[name]["hole_size_hist"], width, color=colours[i], label=name)
+    ax[1].set_xticks(range(len(labels)), labels, fontsize=7)
+    ax[1].set(xlabel="hole size (px, 8-connected)", ylabel="share of holes", title="hole sizes")
+    ax[1].legend(fontsize=6)
+    x = np.arange(len(names))
+    ax[2].bar(x - 0.2, [100 * stats[n]["hole_rate_near_edges"] for n in names], 0.4, label="near depth edges")
+    ax[2].bar(x + 0.2, [100 * stats[n]["hole_rate_flat"] for n in names], 0.4, label="flat regions")
+    ax[2].set_xticks(x, names, rotation=45, ha="right", fontsize=7)
+    ax[2].set(ylabel="pixels that are holes (%)", title="where the holes are")
+    ax[2].legend(fontsize=6)
+    ax[3].bar(x, [stats[n]["holes_per_frame"] for n in names], color=colours)
+    ax[3].set_xticks(x, names, rotation=45, ha="right", fontsize=7)
+    ax[3].set(ylabel="hole components per frame", title="hole count")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

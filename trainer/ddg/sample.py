@@ -1,12 +1,14 @@
 """DDIM sampling of the generator (diffusers' DDIMScheduler, the one implementation of the update), with the
 U-Net run by onnxruntime (``OnnxEps``, for generation) or torch (``TorchEps``, the reference in tests).
 
-Each frame's start noise comes from its own generator seeded by (seed, frame index), so the output for a frame
-does not depend on batching, sharding or resuming.
+Each frame's start noise (and, with eta > 0, each step's fresh noise) comes from its own generator seeded by
+(seed, frame index), so the output for a frame does not depend on batching, sharding or resuming.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Protocol
 
@@ -18,23 +20,47 @@ from .model import ddim_scheduler, load_config, load_unet
 from .prior import DepthPrior
 
 
+class FrameError(ValueError):
+    """Simulated frames the generator cannot take (wrong dtype, rank or resolution)."""
+
+
 class EpsFn(Protocol):
     def __call__(self, x: np.ndarray, t: int) -> np.ndarray:
         """x float32 [B, 2, H, W] = d_k ⊕ c, timestep t -> predicted noise float32 [B, 1, H, W]."""
         ...
 
 
+SESSION_MODES = ("split", "intra", "intra_spin")
+"""How ``OnnxEps`` spreads a batch over ``threads`` cores (``python -m trainer ddg bench`` compares them).
+split: one single-threaded session called once per frame, ``threads`` calls at a time (measured fastest: a
+one-frame call costs the least CPU per frame, as the mid attention's [heads, 768, 768] scores stay in cache);
+intra: one call per batch with ``threads`` intra-op threads that sleep when idle; intra_spin: the same with
+onnxruntime's default spin-waiting (fast on an idle machine, burns a shared one's cores)."""
+
+
 class OnnxEps:
-    def __init__(self, model_dir: str | Path, threads: int = 2) -> None:
+    def __init__(self, model_dir: str | Path, threads: int = 2, mode: str = "split") -> None:
         import onnxruntime as ort
 
+        if mode not in SESSION_MODES:
+            raise ValueError(f"session mode must be one of {SESSION_MODES}, got {mode!r}")
         opts = ort.SessionOptions()
-        opts.intra_op_num_threads = threads
+        opts.intra_op_num_threads = 1 if mode == "split" else threads
         opts.inter_op_num_threads = 1
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "1" if mode == "intra_spin" else "0")
         self.session = ort.InferenceSession(str(Path(model_dir) / "unet.onnx"), opts,
                                             providers=["CPUExecutionProvider"])
+        # onnxruntime releases the GIL, so Python threads run the single-threaded calls in parallel
+        self.pool = ThreadPoolExecutor(threads) if mode == "split" and threads > 1 else None
+        self.per_frame = mode == "split"
 
     def __call__(self, x: np.ndarray, t: int) -> np.ndarray:
+        if not self.per_frame or len(x) == 1:
+            return self._run(x, t)
+        run = self.pool.map if self.pool else map
+        return np.concatenate(list(run(self._run, np.split(x, len(x)), [t] * len(x))))
+
+    def _run(self, x: np.ndarray, t: int) -> np.ndarray:
         return self.session.run(None, {"x": x, "t": np.full(len(x), t, np.int64)})[0]
 
 
@@ -47,19 +73,23 @@ class TorchEps:
         return self.unet(torch.from_numpy(x), torch.full((len(x),), t)).sample.numpy()
 
 
-def frame_noise(seed: int, indices: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """float32 [B, 1, H, W]: N(0, I) start noise, one generator per (seed, frame index)."""
-    return np.stack([np.random.default_rng([seed, int(i)]).standard_normal(shape, np.float32)
-                     for i in indices])[:, None]
+def frame_noise(seed: int, indices: np.ndarray, shape: tuple[int, int], step: int = -1) -> np.ndarray:
+    """float32 [B, 1, H, W]: N(0, I) noise, one generator per (seed, frame index): the start noise, or with
+    ``step`` >= 0 the fresh noise that DDIM step ``step`` adds when eta > 0."""
+    keys = [[seed, int(i)] if step < 0 else [seed, int(i), step] for i in indices]
+    return np.stack([np.random.default_rng(k).standard_normal(shape, np.float32) for k in keys])[:, None]
 
 
-def ddim_sample(eps_fn: EpsFn, c: np.ndarray, noise: np.ndarray, scheduler) -> np.ndarray:
-    """Reverse process from ``noise`` [B, 1, H, W] under condition ``c`` [B, H, W] -> d_pred [B, H, W]."""
+def ddim_sample(eps_fn: EpsFn, c: np.ndarray, noise: np.ndarray, scheduler, eta: float = 0.0,
+                step_noise: Callable[[int], np.ndarray] | None = None) -> np.ndarray:
+    """Reverse process from ``noise`` [B, 1, H, W] under condition ``c`` [B, H, W] -> d_pred [B, H, W].
+    eta = 0 is deterministic DDIM; eta > 0 adds ``step_noise(k)`` at step k (eta = 1: DDPM-like)."""
     x = torch.from_numpy(noise)
     cond = c[:, None].astype(np.float32)
-    for t in scheduler.timesteps:
+    for k, t in enumerate(scheduler.timesteps):
         eps = eps_fn(np.concatenate([x.numpy(), cond], axis=1), int(t))
-        x = scheduler.step(torch.from_numpy(eps), t, x, eta=0.0).prev_sample
+        fresh = torch.from_numpy(step_noise(k)) if eta > 0 and step_noise is not None else None
+        x = scheduler.step(torch.from_numpy(eps), t, x, eta=eta, variance_noise=fresh).prev_sample
     return x.numpy()[:, 0]
 
 
@@ -67,16 +97,26 @@ class Generator:
     """Simulated uint16 mm frames -> (DDG, DDG without grafting) uint16 mm frames."""
 
     def __init__(self, model_dir: str | Path, steps: int = 10, seed: int = 0, threads: int = 2,
-                 backend: str = "onnx") -> None:
+                 backend: str = "onnx", mode: str = "split", eta: float = 0.0) -> None:
         cfg = load_config(model_dir)
-        self.spec, self.threshold, self.seed = cfg["depth_spec"], cfg["hole_threshold"], seed
+        self.spec, self.threshold, self.seed, self.eta = cfg["depth_spec"], cfg["hole_threshold"], seed, eta
         self.scheduler = ddim_scheduler(cfg["unet"], steps)
-        self.eps = OnnxEps(model_dir, threads) if backend == "onnx" else TorchEps(model_dir)
+        self.eps = OnnxEps(model_dir, threads, mode) if backend == "onnx" else TorchEps(model_dir)
         self.prior = DepthPrior(self.spec)
 
+    def check_frames(self, sim_mm) -> None:
+        """Refuse frames not at the model's resolution (the U-Net is fully convolutional: it would run)."""
+        want = (self.spec.out_height, self.spec.out_width)
+        if sim_mm.dtype != np.uint16 or sim_mm.ndim != 3 or tuple(sim_mm.shape[1:]) != want:
+            raise FrameError(f"simulated depth must be uint16 mm [N, {want[0]}, {want[1]}] (the model's "
+                             f"resolution), got {sim_mm.dtype} {list(sim_mm.shape)}")
+
     def __call__(self, sim_mm: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self.check_frames(sim_mm)
         c = np.stack([self.prior(d) for d in sim_mm])
         noise = frame_noise(self.seed, indices, sim_mm.shape[1:])
-        pred_mm = decode(ddim_sample(self.eps, c, noise, self.scheduler), self.spec, self.threshold)
+        pred = ddim_sample(self.eps, c, noise, self.scheduler, self.eta,
+                           lambda k: frame_noise(self.seed, indices, sim_mm.shape[1:], k))
+        pred_mm = decode(pred, self.spec, self.threshold)
         grafted = np.stack([graft(s, p, self.spec) for s, p in zip(sim_mm, pred_mm, strict=True)])
         return grafted, pred_mm
