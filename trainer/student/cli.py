@@ -1,4 +1,4 @@
-"""``python -m trainer student fit|init ...``; fit also runs under ``torchrun --nproc_per_node N``."""
+"""``python -m trainer student fit|init|probe ...``; fit also runs under ``torchrun --nproc_per_node N``."""
 
 from __future__ import annotations
 
@@ -31,8 +31,14 @@ def cmd_fit(argv: list[str]) -> int:
     return fit_main(argv)
 
 
+def cmd_probe(argv: list[str]) -> int:
+    from trainer.student.probe import main as probe_main
+    return probe_main(argv)
+
+
 HANDLERS = {"fit": (cmd_fit, "train the student on demos (eq. 10, EMA, checkpoints, resume)"),
-            "init": (cmd_init, "write an untrained checkpoint (test fixtures)")}
+            "init": (cmd_init, "write an untrained checkpoint (test fixtures)"),
+            "probe": (cmd_probe, "offline action error of an exported student against demos")}
 
 
 def main(argv: list[str] | None = None) -> int:
