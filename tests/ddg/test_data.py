@@ -14,7 +14,7 @@ from trainer.ddg.data import (
     split,
 )
 
-SHARED = "../shared/data/real_depth"
+SHARED = str(Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real_depth")  # beside the repo
 
 
 def _save(path, **arrays):
