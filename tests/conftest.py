@@ -3,12 +3,16 @@ it builds in seconds) for runtime, HIL and evaluation tests that need a policy f
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from runtime.preprocess import DepthSpec
+
+# Headless rendering, as `make test` exports it; without it a bare `pytest` aborts in MuJoCo's GLFW default.
+os.environ.setdefault("MUJOCO_GL", "egl")
 
 TINY_STUDENT = ("--width", "8", "--head-dims", "16", "32", "--state-features", "16", "--step-features", "16")
 
