@@ -49,13 +49,13 @@ class TeacherConfig:
     """dummy (envs stepped in this process: measured 328 vs 275 env steps/s for subproc on 2 loaded
     cores, the state-only step is too cheap to pay for the pipes) | subproc (one process per env)."""
     seed: int = 0
-    dagger_expert_episodes: int = 200
+    dagger_expert_episodes: int = DaggerConfig.expert_episodes
     """Episodes of DAgger's first round, driven by the reactive scripted expert."""
-    dagger_episodes: int = 60
+    dagger_episodes: int = DaggerConfig.episodes
     """Episodes per learner round of DAgger; 0 skips DAgger and trains PPO from scratch."""
-    dagger_rounds: int = 14
+    dagger_rounds: int = DaggerConfig.rounds
     """DAgger rounds driven by the learner after the expert's round (0: plain behaviour cloning)."""
-    dagger_epochs: int = 20
+    dagger_epochs: int = DaggerConfig.epochs
     """Passes over the aggregated DAgger data after each round."""
     n_steps: int = 512
     """Env steps per env per PPO update."""
