@@ -85,9 +85,12 @@ class DemoStore:
         path = Path(path)
         if (path / "zarr.json").is_file():
             return cls.open(path, mode="a")
+        # Built beside its final name and renamed into place, so neither a reader nor a resume ever sees a
+        # store without its arrays (a kill during creation leaves only the ".creating" folder).
+        staging = path.with_name(path.name + ".creating")
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            root = zarr.open_group(str(path), mode="w")
+            root = zarr.open_group(str(staging), mode="w")
         except OSError as exc:
             raise DatasetError(f"cannot write a demo store at {str(path)!r}: {exc.strerror or exc}") from None
         h, w = spec.out_height, spec.out_width
@@ -104,7 +107,11 @@ class DemoStore:
         root.attrs.update({"depth_spec": spec.to_dict(), "action_scale": action_scale,
                            "control_rate_hz": control_rate_hz, "depth_scale": DEPTH_SCALE,
                            "attempted": 0, "succeeded": 0, "failed": 0, **(attrs or {})})
-        return cls(root)
+        try:
+            staging.rename(path)
+        except OSError as exc:
+            raise DatasetError(f"cannot write a demo store at {str(path)!r}: {exc.strerror or exc}") from None
+        return cls(zarr.open_group(str(path), mode="a"))
 
     def _truncate_partial(self) -> None:
         """Cut arrays back to the last complete episode (a write interrupted half way)."""

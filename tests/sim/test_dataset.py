@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+import zarr
 
 from runtime.preprocess import DepthSpec
 from trainer.dataset import DatasetError, DemoStore, EpisodeRecord
@@ -98,3 +99,26 @@ def test_mismatched_episode_is_rejected(tmp_path) -> None:
         store.append(bad)
     with pytest.raises(IndexError):
         store.episode_slice(0)
+
+
+def test_store_appears_only_complete(tmp_path, monkeypatch) -> None:
+    """A kill during creation leaves no half-made store under the final name; the next run starts clean."""
+    path = tmp_path / "d.zarr"
+
+    class Crash(RuntimeError):
+        pass
+
+    def crash(*args, **kwargs):
+        raise Crash
+
+    monkeypatch.setattr(zarr.Group, "create_array", crash)
+    with pytest.raises(Crash):
+        _create(path)
+    monkeypatch.undo()
+    assert not path.exists() and (tmp_path / "d.zarr.creating").exists()
+    with pytest.raises(DatasetError, match="no demo store"):
+        DemoStore.open(path)
+    store = _create(path)
+    store.append(_episode(3, 0))
+    assert DemoStore.open(path).n_episodes == 1 and not (tmp_path / "d.zarr.creating").exists()
+    assert zarr.open_group(str(path), mode="r")["meta/episode_ends"].shape == (1,)
