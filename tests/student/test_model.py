@@ -8,7 +8,7 @@ import torch
 from trainer.student import checkpoint
 from trainer.student.cli import main as student_main
 from trainer.student.config import StudentConfig, StudentConfigError
-from trainer.student.model import StudentPolicy
+from trainer.student.model import SpatialSoftmax, StudentPolicy
 
 TINY = StudentConfig(width=8, head_dims=(16, 32), state_features=16, step_features=16)
 
@@ -18,7 +18,7 @@ def test_noise_prediction_shape_and_conditioning():
     net = StudentPolicy(TINY).eval()
     depth, state = torch.rand(2, 3, 96, 128), torch.randn(2, 8)
     obs = net.encode(depth, state)
-    assert obs.shape == (2, 8 * TINY.width + TINY.state_features)
+    assert obs.shape == (2, 2 * TINY.keypoints + TINY.state_features)
     x, k = torch.randn(2, 16, 8), torch.tensor([3, 70])
     eps = net(x, k, obs)
     assert eps.shape == x.shape
@@ -27,11 +27,23 @@ def test_noise_prediction_shape_and_conditioning():
     assert not torch.allclose(eps, net(x, torch.tensor([50, 10]), obs))
 
 
+def test_spatial_softmax_reads_where_the_peak_is():
+    pool = SpatialSoftmax(channels=1, keypoints=1)
+    with torch.no_grad():
+        pool.keypoints.weight.fill_(1.0)
+        pool.keypoints.bias.zero_()
+    fmap = torch.zeros(2, 1, 3, 5)
+    fmap[0, 0, 0, 4] = 50.0  # top right
+    fmap[1, 0, 2, 0] = 50.0  # bottom left
+    torch.testing.assert_close(pool(fmap), torch.tensor([[1.0, -1.0], [-1.0, 1.0]]), atol=1e-4, rtol=0)
+
+
 @pytest.mark.parametrize("kwargs, match", [
     ({"width": 12}, "width"),
     ({"head_dims": (16, 20)}, "head_dims"),
     ({"action_horizon": 10, "head_dims": (16, 32, 64)}, "action_horizon"),
     ({"exec_horizon": 17}, "exec_horizon"),
+    ({"keypoints": 0}, "keypoints"),
 ])
 def test_bad_config_is_refused(kwargs, match):
     with pytest.raises(StudentConfigError, match=match):

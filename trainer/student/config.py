@@ -17,6 +17,8 @@ class StudentConfig:
 
     width: int = 64
     """ResNet-18 base width: stage channels are width, 2w, 4w, 8w (64 = the standard ResNet-18)."""
+    keypoints: int = 32
+    """Learned keypoints of the encoder's spatial-softmax pooling (robomimic / diffusion_policy: 32)."""
     obs_horizon: int = 3
     """Depth frames stacked as input channels, oldest first."""
     action_horizon: int = 16
@@ -44,7 +46,7 @@ class StudentConfig:
                                      f"2**{len(self.head_dims) - 1} for a {len(self.head_dims)}-level U-Net")
         if not (0 < self.exec_horizon <= self.action_horizon):
             raise StudentConfigError(f"exec_horizon {self.exec_horizon} must be in 1..{self.action_horizon}")
-        for name in ("obs_horizon", "state_dim", "action_dim", "state_features", "step_features",
+        for name in ("keypoints", "obs_horizon", "state_dim", "action_dim", "state_features", "step_features",
                      "train_timesteps"):
             if getattr(self, name) < 1:
                 raise StudentConfigError(f"{name} must be >= 1, got {getattr(self, name)}")

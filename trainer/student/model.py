@@ -39,10 +39,33 @@ class BasicBlock(nn.Module):
         return torch.relu(self.norm2(self.conv2(y)) + self.shortcut(x))
 
 
-class ResNet18(nn.Module):
-    """ResNet-18 layout (stem + 4 stages of 2 basic blocks), trained from scratch: no weights to fetch."""
+class SpatialSoftmax(nn.Module):
+    """Feature map [B, C, h, w] -> [B, 2K]: the expected image position (x, y in [-1, 1]) of each of K
+    learned keypoint maps. Global average pooling throws away *where* the object is, which is the one
+    thing a grasping policy must read from depth; diffusion_policy (after robomimic) pools this way."""
 
-    def __init__(self, in_channels: int, width: int) -> None:
+    def __init__(self, channels: int, keypoints: int) -> None:
+        super().__init__()
+        self.keypoints = nn.Conv2d(channels, keypoints, 1)
+        self.out_features = 2 * keypoints
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        b, _, h, w = x.shape
+        grid = torch.stack([_coords(w).repeat(h), _coords(h).repeat_interleave(w)], dim=-1)  # [h*w, (x, y)]
+        attention = torch.softmax(self.keypoints(x).flatten(2), dim=-1)  # [B, K, h*w]
+        return (attention @ grid).reshape(b, -1)
+
+
+def _coords(n: int) -> torch.Tensor:
+    """n pixel centres spread over [-1, 1] (float32 arithmetic, which exports as plain constants)."""
+    return torch.arange(n, dtype=torch.float32) * (2.0 / max(n - 1, 1)) - 1.0
+
+
+class ResNet18(nn.Module):
+    """ResNet-18 layout (stem + 4 stages of 2 basic blocks), trained from scratch: no weights to fetch,
+    pooled by ``SpatialSoftmax`` instead of the classifier's global average."""
+
+    def __init__(self, in_channels: int, width: int, keypoints: int) -> None:
         super().__init__()
         self.stem = nn.Sequential(nn.Conv2d(in_channels, width, 7, 2, 3, bias=False),
                                   nn.GroupNorm(_groups(width), width), nn.ReLU(), nn.MaxPool2d(3, 2, 1))
@@ -52,10 +75,11 @@ class ResNet18(nn.Module):
             c_in = chans[max(i - 1, 0)]
             blocks += [BasicBlock(c_in, c, 1 if i == 0 else 2), BasicBlock(c, c, 1)]
         self.blocks = nn.Sequential(*blocks)
-        self.out_features = chans[-1]
+        self.pool = SpatialSoftmax(chans[-1], keypoints)
+        self.out_features = self.pool.out_features
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.blocks(self.stem(x)).mean(dim=(2, 3))
+        return self.pool(self.blocks(self.stem(x)))
 
 
 def step_embedding(steps: torch.Tensor, dim: int) -> torch.Tensor:
@@ -138,7 +162,7 @@ class StudentPolicy(nn.Module):
         self.config = config
         self.state_norm = RangeNormaliser(config.state_dim)
         self.action_norm = RangeNormaliser(config.action_dim)
-        self.encoder = ResNet18(config.obs_horizon, config.width)
+        self.encoder = ResNet18(config.obs_horizon, config.width, config.keypoints)
         self.state_mlp = nn.Sequential(nn.Linear(config.state_dim, config.state_features), nn.ReLU(),
                                        nn.Linear(config.state_features, config.state_features))
         obs_dim = self.encoder.out_features + config.state_features
