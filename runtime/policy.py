@@ -70,9 +70,11 @@ class Policy:
     def noise_shape(self) -> tuple[int, int, int]:
         return (1, self.metadata.action_horizon, self.metadata.action_dim)
 
-    def __call__(self, depth: np.ndarray, state: np.ndarray) -> np.ndarray:
-        """depth float32 [obs_horizon, H, W] (oldest first), state float32 [8] -> actions float32 [Ha, 8]."""
-        noise = self._rng.standard_normal(self.noise_shape, dtype=np.float32)
+    def __call__(self, depth: np.ndarray, state: np.ndarray, noise: np.ndarray | None = None) -> np.ndarray:
+        """depth float32 [obs_horizon, H, W] (oldest first), state float32 [8] -> actions float32 [Ha, 8].
+        The start noise is drawn from the policy's own generator unless given (paired offline comparisons)."""
+        if noise is None:
+            noise = self._rng.standard_normal(self.noise_shape, dtype=np.float32)
         feeds = {"depth": np.ascontiguousarray(depth, dtype=np.float32)[None],
                  "state": np.ascontiguousarray(state, dtype=np.float32)[None], "noise": noise}
         actions = self.session.run([_OUTPUT], feeds)[0][0]

@@ -10,6 +10,7 @@ import sys
 
 import numpy as np
 import pytest
+import zarr
 
 from runtime.preprocess import DepthSpec
 from tests.conftest import write_synthetic_demos
@@ -68,3 +69,23 @@ def test_torchrun_two_gloo_processes(small_demos, tmp_path):
     assert summary["world_size"] == 2 and len(summary["peak_rss_mb_per_rank"]) == 2
     assert summary["ranks_in_sync"] is True
     assert checkpoint.load(out / "ckpt.pt").step == 3
+
+
+def test_object_loss_trains_the_object_head_and_needs_object_xy(small_demos, tmp_path):
+    """The auxiliary loss reaches the object head (and through it the encoder); without it the head is
+    untouched; a store that does not record object_xy is refused unless the loss is off."""
+    with_aux, without = tmp_path / "aux", tmp_path / "plain"
+    assert fit_main([*fit_args(small_demos, with_aux, 3), "--ema-max", "0"]) == 0
+    assert fit_main([*fit_args(small_demos, without, 3), "--ema-max", "0", "--object-loss", "0"]) == 0
+    trained = checkpoint.load(with_aux / "ckpt.pt")
+    fresh = checkpoint.fresh(trained.config, trained.info)  # same seed: the weights the runs started from
+    head = "object_head.weight"
+    assert not np.allclose(trained.model[head], fresh.model[head])
+    np.testing.assert_array_equal(checkpoint.load(without / "ckpt.pt").model[head], fresh.model[head])
+
+    unplaced = write_synthetic_demos(tmp_path / "unplaced.zarr", spec=SMALL_SPEC)
+    store = zarr.open_group(str(unplaced), mode="r+")
+    store["meta/randomisation"][:] = np.array(["{}"] * store["meta/randomisation"].shape[0])
+    with pytest.raises(FitError, match="object_xy"):
+        fit_main(fit_args(unplaced, tmp_path / "refused", 1))
+    assert fit_main([*fit_args(unplaced, tmp_path / "ok", 1), "--object-loss", "0"]) == 0

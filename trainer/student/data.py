@@ -9,6 +9,7 @@ that run past the episode end repeat its last action (diffusion_policy pads the 
 from __future__ import annotations
 
 import hashlib
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +37,10 @@ class Batch:
     """float32 [B, 8], raw units."""
     action: torch.Tensor
     """float32 [B, Ha, 8], env units (joint deltas in [-1, 1] before s, gripper -1/+1)."""
+    object_xy: torch.Tensor | None
+    """float32 [B, 2]: the episode's object position on the table, standardised over the demos
+    (privileged, sim-only: the target of the auxiliary loss, never a policy input); None when the store
+    does not record it."""
 
 
 def frame_augmenter(depth_source: str) -> Callable[[np.ndarray, np.random.Generator], np.ndarray] | None:
@@ -77,6 +82,8 @@ class DemoDataset:
         steps_per_ep = np.diff(np.concatenate([[0], self.ends]))
         self._start = np.repeat(starts, steps_per_ep)
         self._end = np.repeat(self.ends, steps_per_ep)
+        placed = _object_xy(store)
+        self.object_xy = None if placed is None else _standardised(np.repeat(placed, steps_per_ep, axis=0))
 
     def __len__(self) -> int:
         return len(self.action)
@@ -98,7 +105,9 @@ class DemoDataset:
     def batch(self, indices: np.ndarray, rng: np.random.Generator | None = None) -> Batch:
         depth = np.stack([self.depth_stack(int(i), rng) for i in indices])
         action = np.stack([self.action[self.action_indices(int(i))] for i in indices])
-        return Batch(torch.from_numpy(depth), torch.from_numpy(self.state[indices]), torch.from_numpy(action))
+        placed = None if self.object_xy is None else torch.from_numpy(self.object_xy[indices])
+        return Batch(torch.from_numpy(depth), torch.from_numpy(self.state[indices]), torch.from_numpy(action),
+                     placed)
 
     def fingerprint(self) -> dict:
         """Identifies the training data in the policy file's metadata."""
@@ -107,3 +116,16 @@ class DemoDataset:
             h.update(np.ascontiguousarray(arr).tobytes())
         return {"demos": str(self.path.resolve()), "depth_source": self.depth_source,
                 "episodes": len(self.ends), "steps": len(self), "demos_sha256": h.hexdigest()[:16]}
+
+
+def _object_xy(store: DemoStore) -> np.ndarray | None:
+    """Per episode [E, 2]: where the object was placed (``object_xy`` of the recorded randomisation), or
+    None if an episode does not record it."""
+    draws = [json.loads(str(r)) for r in store.root["meta/randomisation"][:]]
+    if not all("object_xy" in d for d in draws):
+        return None
+    return np.array([d["object_xy"] for d in draws], dtype=np.float32).reshape(-1, 2)
+
+
+def _standardised(xy: np.ndarray) -> np.ndarray:
+    return ((xy - xy.mean(0)) / np.maximum(xy.std(0), 1e-6)).astype(np.float32)

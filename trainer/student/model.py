@@ -167,10 +167,15 @@ class StudentPolicy(nn.Module):
                                        nn.Linear(config.state_features, config.state_features))
         obs_dim = self.encoder.out_features + config.state_features
         self.head = ConditionalUnet1d(config.action_dim, obs_dim, config.head_dims, config.step_features)
+        self.object_head = nn.Linear(self.encoder.out_features, 2)
+        """Training only (not in the exported graph): the object's table position from the depth features."""
 
     def encode(self, depth: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """Preprocessed depth [B, To, H, W] + raw state [B, S] -> observation feature [B, F]."""
-        return torch.cat([self.encoder(depth), self.state_mlp(self.state_norm.normalise(state))], dim=-1)
+        return self.fuse(self.encoder(depth), state)
+
+    def fuse(self, depth_features: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        return torch.cat([depth_features, self.state_mlp(self.state_norm.normalise(state))], dim=-1)
 
     def forward(self, noisy_actions: torch.Tensor, steps: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
         return self.head(noisy_actions, steps, obs)

@@ -2,9 +2,11 @@
 
 A cheap check before a closed-loop evaluation: on every ``--every``-th demo step it runs the policy file
 exactly as the evaluator does (runtime.policy over onnxruntime, on the same normalised frame stack the
-trainer builds) and compares the first ``exec_horizon`` actions with the demo's, in env units. The
-always-zero predictor is reported beside it: a student no better than zero has not yet learned to use
-its observation.
+trainer builds) and compares the first ``exec_horizon`` actions with the demo's, in env units. Two
+references are reported beside it: the always-zero predictor (a student no better than zero has learned
+nothing), and the same student fed another step's depth with its own joint state
+(``shuffled_depth_err``): a student whose error does not grow when its depth is swapped does not use its
+camera, only the arm's joint state.
 """
 
 from __future__ import annotations
@@ -23,17 +25,29 @@ def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
     meta = policy.meta
     data = DemoDataset(demos, depth_source, meta.obs_horizon, meta.action_horizon)
     steps = np.arange(0, len(data), every)
-    joint_err, zero_err, gripper_ok = [], [], []
-    for i in steps:
-        chunk = policy.runtime(data.depth_stack(int(i)), data.state[i])
-        pred = to_env_actions(chunk[: meta.exec_horizon], meta.action_scale)
+    stacks = [data.depth_stack(int(i)) for i in steps]
+    other = np.roll(np.arange(len(steps)), len(steps) // 2)  # each step paired with a distant one
+    rng = np.random.default_rng(0)
+    joint_err, shuffled_err, zero_err, gripper_ok = [], [], [], []
+    for n, i in enumerate(steps):
         true = data.action[data.action_indices(int(i))][: meta.exec_horizon]
+        noise = rng.standard_normal(policy.runtime.noise_shape, dtype=np.float32)  # same for both calls
+        pred = _env_chunk(policy, stacks[n], data.state[i], noise)
         joint_err.append(np.abs(pred[:, :7] - true[:, :7]).mean())
+        shuffled = _env_chunk(policy, stacks[other[n]], data.state[i], noise)
+        shuffled_err.append(np.abs(shuffled[:, :7] - true[:, :7]).mean())
         zero_err.append(np.abs(true[:, :7]).mean())
         gripper_ok.append((np.sign(pred[:, 7]) == np.sign(true[:, 7])).mean())
     return {"policy": policy_path, "demos": demos, "depth_source": depth_source, "steps": len(steps),
-            "joint_abs_err": float(np.mean(joint_err)), "zero_predictor_err": float(np.mean(zero_err)),
+            "joint_abs_err": float(np.mean(joint_err)), "shuffled_depth_err": float(np.mean(shuffled_err)),
+            "zero_predictor_err": float(np.mean(zero_err)),
             "gripper_sign_agreement": float(np.mean(gripper_ok))}
+
+
+def _env_chunk(policy: StudentOnnxPolicy, stack: np.ndarray, state: np.ndarray,
+               noise: np.ndarray) -> np.ndarray:
+    chunk = policy.runtime(stack, state, noise)
+    return to_env_actions(chunk[: policy.meta.exec_horizon], policy.meta.action_scale)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -27,7 +27,7 @@ from trainer.student import checkpoint
 from trainer.student.argspec import add_dataclass_args, from_args
 from trainer.student.checkpoint import Checkpoint, TrainingInfo
 from trainer.student.config import StudentConfig
-from trainer.student.data import DEPTH_ARRAYS, DemoDataset
+from trainer.student.data import DEPTH_ARRAYS, Batch, DemoDataset
 from trainer.student.ddim import training_scheduler
 from trainer.student.model import StudentPolicy
 
@@ -55,6 +55,9 @@ class FitConfig:
     warmup: int = 500
     """Warm-up steps of the learning rate."""
     weight_decay: float = 1e-6
+    object_loss: float = 1.0
+    """Weight of the auxiliary loss: predict the object's table position (privileged, sim-only) from the
+    depth features. Without it the students learned to ignore depth (docs/student.md); 0 = eq. 10 alone."""
     ema_max: float = 0.9999
     """Ceiling of the EMA decay; the decay ramps up as 1 - (1 + step)^-0.75 (diffusion_policy)."""
     ckpt_every: int = 500
@@ -72,22 +75,28 @@ class FitConfig:
 
 
 class DenoisingLoss(nn.Module):
-    """Paper eq. 10 in one forward, so DistributedDataParallel sees the whole graph."""
+    """Paper eq. 10 plus ``object_weight`` x the auxiliary object-position loss, in one forward, so
+    DistributedDataParallel sees the whole graph. Returns (total, eq. 10 term)."""
 
-    def __init__(self, policy: StudentPolicy) -> None:
+    def __init__(self, policy: StudentPolicy, object_weight: float = 0.0) -> None:
         super().__init__()
         self.policy = policy
+        self.object_weight = object_weight
         self.scheduler = training_scheduler(policy.config.train_timesteps)
 
-    def forward(self, depth: torch.Tensor, state: torch.Tensor, action: torch.Tensor,
-                generator: torch.Generator) -> torch.Tensor:
-        clean = self.policy.action_norm.normalise(action)
+    def forward(self, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        clean = self.policy.action_norm.normalise(batch.action)
         noise = torch.randn(clean.shape, generator=generator)
         steps = self.scheduler.config.num_train_timesteps
         k = torch.randint(0, steps, (clean.shape[0],), generator=generator)
         noisy = self.scheduler.add_noise(clean, noise, k)
-        pred = self.policy(noisy, k, self.policy.encode(depth, state))
-        return nn.functional.mse_loss(pred, noise)
+        features = self.policy.encoder(batch.depth)
+        obs = self.policy.fuse(features, batch.state)
+        denoising = nn.functional.mse_loss(self.policy(noisy, k, obs), noise)
+        if not self.object_weight:
+            return denoising, denoising
+        located = nn.functional.mse_loss(self.policy.object_head(features), batch.object_xy)
+        return denoising + self.object_weight * located, denoising
 
 
 def ema_update(ema: dict[str, torch.Tensor], model: nn.Module, step: int, ema_max: float) -> None:
@@ -158,11 +167,15 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
     if cfg.batch % world:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
     data = DemoDataset(cfg.demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon)
+    if cfg.object_loss and data.object_xy is None:
+        raise FitError(f"{cfg.demos} does not record object_xy for every episode; train with --object-loss 0")
     ckpt = start_or_resume(cfg, model_cfg, data)
     net = StudentPolicy(model_cfg)
     net.load_state_dict(ckpt.model)
-    loss_fn = DenoisingLoss(net.train())
-    trainable = DistributedDataParallel(loss_fn) if world > 1 else loss_fn
+    loss_fn = DenoisingLoss(net.train(), cfg.object_loss)
+    trainable = loss_fn
+    if world > 1:  # without the object loss the object head gets no gradient
+        trainable = DistributedDataParallel(loss_fn, find_unused_parameters=not cfg.object_loss)
     optim = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, foreach=True)
     if ckpt.optimizer is not None:
         optim.load_state_dict(ckpt.optimizer)
@@ -175,11 +188,11 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
         for group in optim.param_groups:
             group["lr"] = cfg.lr * lr_factor(step, cfg)
         batch = data.batch(rng.integers(0, len(data), cfg.batch // world), rng)
-        loss = trainable(batch.depth, batch.state, batch.action, gen)
+        loss, denoising = trainable(batch, gen)
         optim.zero_grad(set_to_none=True)
         loss.backward()
         optim.step()
-        ckpt.losses.append(mean_over_ranks(loss.detach(), world))
+        ckpt.losses.append(mean_over_ranks(denoising.detach(), world))
         if rank == 0:
             ema_update(ckpt.ema, net, step, cfg.ema_max)
         ckpt.step = step + 1
