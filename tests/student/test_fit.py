@@ -89,3 +89,22 @@ def test_object_loss_trains_the_object_head_and_needs_object_xy(small_demos, tmp
     with pytest.raises(FitError, match="object_xy"):
         fit_main(fit_args(unplaced, tmp_path / "refused", 1))
     assert fit_main([*fit_args(unplaced, tmp_path / "ok", 1), "--object-loss", "0"]) == 0
+
+
+def test_probe_locates_with_the_object_head(small_demos, tmp_path):
+    """`probe --checkpoint`'s object error is in cm against the truth, beside the training-mean answer."""
+    from trainer.student.probe import locate
+
+    out = tmp_path / "run"
+    assert fit_main(fit_args(small_demos, out, 2)) == 0
+    got = locate(str(out / "ckpt.pt"), str(small_demos), "gt", every=1)
+    xy = np.array([[json.loads(str(r))["object_xy"]] * 12 for r in
+                   zarr.open_group(str(small_demos), mode="r")["meta/randomisation"][:]]).reshape(-1, 2)
+    expected = np.linalg.norm(xy - xy.mean(0), axis=1).mean() * 100
+    assert got["mean_position_err_cm"] == pytest.approx(expected, rel=1e-5)
+    assert 0 < got["object_err_cm"]["median"] < 1e4 and np.isfinite(got["object_err_cm"]["mean"])
+    untrained = tmp_path / "untrained.pt"
+    config = checkpoint.load(out / "ckpt.pt").config
+    checkpoint.save(untrained, checkpoint.fresh(config, checkpoint.TrainingInfo()))
+    with pytest.raises(ValueError, match="records no training demos"):
+        locate(str(untrained), str(small_demos), "gt", every=1)

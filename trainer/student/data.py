@@ -82,8 +82,8 @@ class DemoDataset:
         steps_per_ep = np.diff(np.concatenate([[0], self.ends]))
         self._start = np.repeat(starts, steps_per_ep)
         self._end = np.repeat(self.ends, steps_per_ep)
-        placed = _object_xy(store)
-        self.object_xy = None if placed is None else _standardised(np.repeat(placed, steps_per_ep, axis=0))
+        placed = object_positions(store)
+        self.object_xy = None if placed is None else standardise_xy(placed, placed)
 
     def __len__(self) -> int:
         return len(self.action)
@@ -118,14 +118,16 @@ class DemoDataset:
                 "episodes": len(self.ends), "steps": len(self), "demos_sha256": h.hexdigest()[:16]}
 
 
-def _object_xy(store: DemoStore) -> np.ndarray | None:
-    """Per episode [E, 2]: where the object was placed (``object_xy`` of the recorded randomisation), or
-    None if an episode does not record it."""
+def object_positions(store: DemoStore) -> np.ndarray | None:
+    """Per step [N, 2], metres: where the step's object was placed (``object_xy`` of the episode's recorded
+    randomisation), or None if an episode does not record it."""
     draws = [json.loads(str(r)) for r in store.root["meta/randomisation"][:]]
     if not all("object_xy" in d for d in draws):
         return None
-    return np.array([d["object_xy"] for d in draws], dtype=np.float32).reshape(-1, 2)
+    per_episode = np.array([d["object_xy"] for d in draws], dtype=np.float32).reshape(-1, 2)
+    return np.repeat(per_episode, np.diff(np.concatenate([[0], store.episode_ends])), axis=0)
 
 
-def _standardised(xy: np.ndarray) -> np.ndarray:
-    return ((xy - xy.mean(0)) / np.maximum(xy.std(0), 1e-6)).astype(np.float32)
+def standardise_xy(xy: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Metres -> the auxiliary loss's units: zero mean, unit std over ``reference`` (the training demos)."""
+    return ((xy - reference.mean(0)) / np.maximum(reference.std(0), 1e-6)).astype(np.float32)

@@ -6,17 +6,27 @@ trainer builds) and compares the first ``exec_horizon`` actions with the demo's,
 references are reported beside it: the always-zero predictor (a student no better than zero has learned
 nothing), and the same student fed another step's depth with its own joint state
 (``shuffled_depth_err``): a student whose error does not grow when its depth is swapped does not use its
-camera, only the arm's joint state.
+camera, only the arm's joint state. With ``--checkpoint`` (the run the file was exported from) it also
+measures the training-only object head on these demos: how far, in cm, its object position is from the
+true one (``object_err_cm``), beside always answering the training demos' mean position. Run it on demos
+the student never saw: a head that memorised its training episodes is no better than the mean there.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 
 import numpy as np
+import torch
 
-from trainer.student.data import DemoDataset
+from runtime.policy import PolicyError
+from trainer.dataset import DatasetError, DemoStore
+from trainer.student import checkpoint
+from trainer.student.checkpoint import CheckpointError
+from trainer.student.data import DemoDataError, DemoDataset, object_positions
 from trainer.student.onnx_policy import StudentOnnxPolicy, to_env_actions
 
 
@@ -44,6 +54,26 @@ def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
             "gripper_sign_agreement": float(np.mean(gripper_ok))}
 
 
+def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
+    """The object head's error on ``demos`` (cm), against predicting the training demos' mean position."""
+    ckpt = checkpoint.load(Path(ckpt_path))
+    if "demos" not in ckpt.info.data:
+        raise DemoDataError(f"{ckpt_path} records no training demos (an untrained checkpoint?)")
+    trained_on = object_positions(DemoStore.open(ckpt.info.data["demos"]))
+    data = DemoDataset(demos, depth_source, ckpt.config.obs_horizon, ckpt.config.action_horizon)
+    if trained_on is None or data.object_xy is None:
+        raise DemoDataError("object positions are not recorded in the training or the probed demos")
+    steps = np.arange(0, len(data), every)
+    truth = object_positions(DemoStore.open(demos))[steps]
+    net = ckpt.policy()
+    with torch.no_grad():
+        predicted = net.object_head(net.encoder(data.batch(steps).depth)).numpy()
+    metres = predicted * np.maximum(trained_on.std(0), 1e-6) + trained_on.mean(0)
+    err, mean_err = (np.linalg.norm(x - truth, axis=1) * 100 for x in (metres, trained_on.mean(0)))
+    return {"object_err_cm": {"median": float(np.median(err)), "mean": float(err.mean())},
+            "mean_position_err_cm": float(mean_err.mean())}
+
+
 def _env_chunk(policy: StudentOnnxPolicy, stack: np.ndarray, state: np.ndarray,
                noise: np.ndarray) -> np.ndarray:
     chunk = policy.runtime(stack, state, noise)
@@ -56,8 +86,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--demos", required=True, help="demo store (zarr) to compare with")
     p.add_argument("--depth-source", default="gt", help="gt | randnoise | ddg | ddg_nograft (default gt)")
     p.add_argument("--every", type=int, default=97, help="probe every N-th demo step (default 97)")
+    p.add_argument("--checkpoint", help="the run's ckpt.pt: also report the object head's error (cm)")
     args = p.parse_args(argv)
     if args.every < 1:
         p.error(f"--every must be >= 1, got {args.every}")
-    print(json.dumps(probe(args.policy, args.demos, args.depth_source, args.every)))
+    try:
+        result = probe(args.policy, args.demos, args.depth_source, args.every)
+        if args.checkpoint:
+            result.update(locate(args.checkpoint, args.demos, args.depth_source, args.every))
+    except (PolicyError, DemoDataError, CheckpointError, DatasetError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(result))
     return 0
