@@ -128,6 +128,12 @@ def object_positions(store: DemoStore) -> np.ndarray | None:
     return np.repeat(per_episode, np.diff(np.concatenate([[0], store.episode_ends])), axis=0)
 
 
+def xy_scale(reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and (floored) std of ``reference`` positions: the auxiliary loss's units."""
+    return reference.mean(0), np.maximum(reference.std(0), 1e-6)
+
+
 def standardise_xy(xy: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """Metres -> the auxiliary loss's units: zero mean, unit std over ``reference`` (the training demos)."""
-    return ((xy - reference.mean(0)) / np.maximum(reference.std(0), 1e-6)).astype(np.float32)
+    mean, std = xy_scale(reference)
+    return ((xy - mean) / std).astype(np.float32)

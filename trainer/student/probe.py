@@ -26,7 +26,7 @@ from runtime.policy import PolicyError
 from trainer.dataset import DatasetError, DemoStore
 from trainer.student import checkpoint
 from trainer.student.checkpoint import CheckpointError
-from trainer.student.data import DemoDataError, DemoDataset, object_positions
+from trainer.student.data import DemoDataError, DemoDataset, object_positions, xy_scale
 from trainer.student.onnx_policy import StudentOnnxPolicy, to_env_actions
 
 
@@ -60,16 +60,16 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     if "demos" not in ckpt.info.data:
         raise DemoDataError(f"{ckpt_path} records no training demos (an untrained checkpoint?)")
     trained_on = object_positions(DemoStore.open(ckpt.info.data["demos"]))
-    data = DemoDataset(demos, depth_source, ckpt.config.obs_horizon, ckpt.config.action_horizon)
-    if trained_on is None or data.object_xy is None:
+    probed = object_positions(DemoStore.open(demos))
+    if trained_on is None or probed is None:
         raise DemoDataError("object positions are not recorded in the training or the probed demos")
+    data = DemoDataset(demos, depth_source, ckpt.config.obs_horizon, ckpt.config.action_horizon)
     steps = np.arange(0, len(data), every)
-    truth = object_positions(DemoStore.open(demos))[steps]
     net = ckpt.policy()
     with torch.no_grad():
         predicted = net.object_head(net.encoder(data.batch(steps).depth)).numpy()
-    metres = predicted * np.maximum(trained_on.std(0), 1e-6) + trained_on.mean(0)
-    err, mean_err = (np.linalg.norm(x - truth, axis=1) * 100 for x in (metres, trained_on.mean(0)))
+    mean, std = xy_scale(trained_on)
+    err, mean_err = (np.linalg.norm(x - probed[steps], axis=1) * 100 for x in (predicted * std + mean, mean))
     return {"object_err_cm": {"median": float(np.median(err)), "mean": float(err.mean())},
             "mean_position_err_cm": float(mean_err.mean())}
 
