@@ -10,13 +10,15 @@ import sys
 
 import numpy as np
 import pytest
+import torch
 import zarr
 
 from runtime.preprocess import DepthSpec
 from tests.conftest import write_synthetic_demos
 from trainer.student import checkpoint
 from trainer.student.data import DemoDataset
-from trainer.student.train import FitError
+from trainer.student.checkpoint import TrainingInfo
+from trainer.student.train import FitError, warm_start
 from trainer.student.train import main as fit_main
 
 # A reduced policy resolution keeps these runs to seconds; the model takes any H x W.
@@ -55,6 +57,24 @@ def test_resume_with_another_model_is_refused(small_demos, tmp_path):
     assert fit_main(fit_args(small_demos, out, 1)) == 0
     with pytest.raises(FitError, match="another --out"):
         fit_main([*fit_args(small_demos, out, 2), "--width", "16"])
+    with pytest.raises(FitError, match="depth_source 'gt'"):
+        fit_main([*fit_args(small_demos, out, 2), "--depth-source", "randnoise"])
+
+
+def test_init_starts_a_new_run_from_another_students_weights(small_demos, tmp_path):
+    gt = tmp_path / "gt" / "ckpt.pt"
+    assert fit_main(fit_args(small_demos, gt.parent, 3)) == 0
+    source = checkpoint.load(gt)
+    start = warm_start(gt, source.config, TrainingInfo())
+    assert start.step == 0 and start.optimizer is None and start.info.data["init_sha256"] == checkpoint.sha256(gt)
+    for name, value in source.ema.items():
+        assert torch.equal(start.model[name], value) and torch.equal(start.ema[name], value), name
+    tuned = tmp_path / "tuned"
+    assert fit_main([*fit_args(small_demos, tuned, 1), "--depth-source", "randnoise", "--init", str(gt)]) == 0
+    run = checkpoint.load(tuned / "ckpt.pt")
+    assert run.step == 1 and run.info.data["depth_source"] == "randnoise" and "init_sha256" in run.info.data
+    with pytest.raises(FitError, match="--init"):
+        fit_main([*fit_args(small_demos, tmp_path / "wide", 1), "--width", "16", "--init", str(gt)])
 
 
 @pytest.mark.slow

@@ -13,7 +13,7 @@ import os
 import resource
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +62,9 @@ class FitConfig:
     """Ceiling of the EMA decay; the decay ramps up as 1 - (1 + step)^-0.75 (diffusion_policy)."""
     ckpt_every: int = 500
     """Steps between checkpoints (also written at the end)."""
+    init: str = ""
+    """Start a new run from this checkpoint's EMA weights and normalisers instead of random ones (e.g. the
+    GT-depth student, fine-tuned on DDG depth); the step count, optimiser and LR schedule start afresh."""
     seed: int = 0
     threads: int = 0
     """torch intra-op threads per process (0 = torch's default)."""
@@ -125,13 +128,16 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
         ckpt = checkpoint.load(path)
         if ckpt.config != model_cfg:
             raise FitError(f"{path} was trained with {ckpt.config}, not {model_cfg}; use another --out")
-        if ckpt.info.data.get("demos_sha256") != fingerprint["demos_sha256"]:
-            raise FitError(f"{path} was trained on other demos ({ckpt.info.data.get('demos')}); "
-                           "use another --out")
+        for key in ("demos_sha256", "depth_source"):
+            if ckpt.info.data.get(key) != fingerprint[key]:
+                raise FitError(f"{path} was trained on other data ({key} {ckpt.info.data.get(key)!r}, "
+                               f"not {fingerprint[key]!r}); use another --out")
         return ckpt
     info = TrainingInfo(depth_spec=data.spec, action_scale=data.action_scale,
                         control_rate_hz=data.control_rate_hz, trained=True,
                         data={**fingerprint, "command": " ".join(sys.argv)})
+    if cfg.init:
+        return warm_start(Path(cfg.init), model_cfg, info)
     ckpt = checkpoint.fresh(model_cfg, info, seed=cfg.seed)
     net = StudentPolicy(model_cfg)
     net.load_state_dict(ckpt.model)
@@ -140,6 +146,16 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
     ckpt.model = net.state_dict()
     ckpt.ema = {k: v.clone() for k, v in ckpt.model.items()}
     return ckpt
+
+
+def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo) -> Checkpoint:
+    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights."""
+    source = checkpoint.load(init)
+    if source.config != model_cfg:
+        raise FitError(f"--init {init} is a {source.config}, not the requested {model_cfg}")
+    info = replace(info, data={**info.data, "init": str(init.resolve()), "init_sha256": checkpoint.sha256(init)})
+    return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in source.ema.items()},
+                      model={k: v.clone() for k, v in source.ema.items()})
 
 
 def plot_losses(losses: list[float], path: Path) -> None:
