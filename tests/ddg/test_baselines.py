@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from trainer.ddg.baselines import SOURCES, UnknownSourceError, get_source, gt, inpaint, randnoise
+from trainer.ddg.baselines import (SOURCES, UnknownSourceError, get_source, gt, inpaint, parse_sensor_arg,
+                                   randnoise)
 
 from .conftest import scene
 
@@ -49,3 +50,16 @@ def test_sources_plug_into_the_evaluation_sensors():
     sensor = make_sensor("randnoise")
     d = np.full((96, 128), 900, np.uint16)
     assert sensor(d).shape == d.shape
+
+
+def test_ddg_sensor_takes_model_and_steps(tiny_model, clean):
+    from trainer.sim.sensors import make_sensor
+
+    assert parse_sensor_arg("ddg", f"model={tiny_model},steps=2") == {"model": str(tiny_model), "steps": 2}
+    assert parse_sensor_arg("ddg", str(tiny_model)) == {"model": str(tiny_model)}
+    assert parse_sensor_arg("ddg", "") == {}
+    for bad in ("steps=0", "steps=five", "speed=3"):
+        with pytest.raises(UnknownSourceError, match="expected model=DIR or steps=K"):
+            parse_sensor_arg("ddg", bad)
+    out = make_sensor(f"ddg:model={tiny_model},steps=2")(clean)
+    assert out.shape == clean.shape and out.dtype == np.uint16

@@ -111,13 +111,27 @@ def _edge_map(depth_mm: np.ndarray, grad_mm: float) -> np.ndarray:
 
 
 def sensor_factory(name: str) -> Callable[[str], Callable[[np.ndarray], np.ndarray]]:
-    """Adapter to ``trainer.sim.sensors``' factory shape: ARG (a DDG model dir, '' = shipped) -> (depth
-    -> depth),
-    with a seeded generator of its own."""
+    """Adapter to ``trainer.sim.sensors``' factory shape, with a seeded generator of its own. ARG is
+    ``[model=DIR][,steps=K]`` (defaults: the shipped model, 10 DDIM steps); a bare ARG is the model dir."""
     def factory(arg: str) -> Callable[[np.ndarray], np.ndarray]:
-        source, rng = get_source(name, model=arg or None), np.random.default_rng(0)
+        options = parse_sensor_arg(name, arg)
+        source, rng = get_source(name, **options), np.random.default_rng(0)
         return lambda depth: source(depth, rng)
     return factory
+
+
+def parse_sensor_arg(name: str, arg: str) -> dict:
+    """``model=DIR,steps=K`` (either optional; a bare value is the model) -> get_source's keyword arguments."""
+    options: dict = {}
+    for item in filter(None, arg.split(",")):
+        key, _, value = item.partition("=") if "=" in item else ("model", "", item)
+        if key == "model":
+            options["model"] = value
+        elif key == "steps" and value.isdigit() and int(value) > 0:
+            options["steps"] = int(value)
+        else:
+            raise UnknownSourceError(f"sensor {name!r}: cannot read {item!r}; expected model=DIR or steps=K (K >= 1)")
+    return options
 
 
 def _register() -> None:
