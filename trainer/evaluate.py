@@ -27,8 +27,10 @@ def build_parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--policy", default="scripted", help="scripted | ppo:CKPT | student:ONNX")
     p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
-    p.add_argument("--sensor", default="clean", help="depth sensor model seen by the policy: clean | stereo[:PARAMS] | randnoise | inpaint | "
-                   "ddg[:model=DIR,steps=K] | ddg_nograft[:...] (DDG default: models/ddg, 10 DDIM steps)")
+    p.add_argument("--sensor", default="clean",
+                   help="depth sensor model seen by the policy: clean | stereo[:PARAMS] | randnoise | "
+                        "inpaint | ddg[:model=DIR,steps=K] | ddg_nograft[:...] "
+                        "(DDG default: models/ddg, 10 DDIM steps)")
     p.add_argument("--episodes", type=int, default=60, help="total episodes, spread evenly over the kinds")
     p.add_argument("--seed", type=int, default=10_000, help="seed of the first episode")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes")

@@ -1,8 +1,15 @@
 import numpy as np
 import pytest
 
-from trainer.ddg.baselines import (SOURCES, UnknownSourceError, get_source, gt, inpaint, parse_sensor_arg,
-                                   randnoise)
+from trainer.ddg.baselines import (
+    SOURCES,
+    UnknownSourceError,
+    get_source,
+    gt,
+    inpaint,
+    parse_sensor_arg,
+    randnoise,
+)
 
 from .conftest import scene
 

@@ -121,7 +121,7 @@ def sensor_factory(name: str) -> Callable[[str], Callable[[np.ndarray], np.ndarr
 
 
 def parse_sensor_arg(name: str, arg: str) -> dict:
-    """``model=DIR,steps=K`` (either optional; a bare value is the model) -> get_source's keyword arguments."""
+    """``model=DIR,steps=K`` (either optional; a bare value is the model) -> get_source's keywords."""
     options: dict = {}
     for item in filter(None, arg.split(",")):
         key, _, value = item.partition("=") if "=" in item else ("model", "", item)
@@ -130,7 +130,8 @@ def parse_sensor_arg(name: str, arg: str) -> dict:
         elif key == "steps" and value.isdigit() and int(value) > 0:
             options["steps"] = int(value)
         else:
-            raise UnknownSourceError(f"sensor {name!r}: cannot read {item!r}; expected model=DIR or steps=K (K >= 1)")
+            raise UnknownSourceError(f"sensor {name!r}: cannot read {item!r}; "
+                                     "expected model=DIR or steps=K (K >= 1)")
     return options
 
 

@@ -153,7 +153,8 @@ def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo) -> Chec
     source = checkpoint.load(init)
     if source.config != model_cfg:
         raise FitError(f"--init {init} is a {source.config}, not the requested {model_cfg}")
-    info = replace(info, data={**info.data, "init": str(init.resolve()), "init_sha256": checkpoint.sha256(init)})
+    info = replace(info, data={**info.data, "init": str(init.resolve()),
+                               "init_sha256": checkpoint.sha256(init)})
     return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in source.ema.items()},
                       model={k: v.clone() for k, v in source.ema.items()})
 
