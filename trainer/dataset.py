@@ -159,6 +159,11 @@ class DemoStore:
         return self.root["meta/episode_ends"][:]
 
     @property
+    def episode_lengths(self) -> np.ndarray:
+        """Steps per episode."""
+        return np.diff(self.episode_ends, prepend=0)
+
+    @property
     def n_episodes(self) -> int:
         return int(self.root["meta/episode_ends"].shape[0])
 

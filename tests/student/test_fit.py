@@ -16,7 +16,6 @@ import zarr
 from runtime.preprocess import DepthSpec
 from tests.conftest import write_synthetic_demos
 from trainer.student import checkpoint
-from trainer.student.checkpoint import TrainingInfo
 from trainer.student.data import DemoDataset
 from trainer.student.train import FitError, warm_start
 from trainer.student.train import main as fit_main
@@ -65,7 +64,7 @@ def test_init_starts_a_new_run_from_another_students_weights(small_demos, tmp_pa
     gt = tmp_path / "gt" / "ckpt.pt"
     assert fit_main(fit_args(small_demos, gt.parent, 3)) == 0
     source = checkpoint.load(gt)
-    start = warm_start(gt, source.config, TrainingInfo())
+    start = warm_start(gt, source.config, checkpoint.TrainingInfo())
     assert start.step == 0 and start.optimizer is None
     assert start.info.data["init_sha256"] == checkpoint.sha256(gt)
     for name, value in source.ema.items():

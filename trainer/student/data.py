@@ -79,7 +79,7 @@ class DemoDataset:
         self.obs_horizon, self.action_horizon = obs_horizon, action_horizon
         self.augment = frame_augmenter(depth_source)
         starts = np.concatenate([[0], self.ends[:-1]])
-        steps_per_ep = np.diff(np.concatenate([[0], self.ends]))
+        steps_per_ep = store.episode_lengths
         self._start = np.repeat(starts, steps_per_ep)
         self._end = np.repeat(self.ends, steps_per_ep)
         placed = object_positions(store)
@@ -125,7 +125,7 @@ def object_positions(store: DemoStore) -> np.ndarray | None:
     if not all("object_xy" in d for d in draws):
         return None
     per_episode = np.array([d["object_xy"] for d in draws], dtype=np.float32).reshape(-1, 2)
-    return np.repeat(per_episode, np.diff(np.concatenate([[0], store.episode_ends])), axis=0)
+    return np.repeat(per_episode, store.episode_lengths, axis=0)
 
 
 def xy_scale(reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
