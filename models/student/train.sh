@@ -17,7 +17,7 @@ done
 python -m export runs/student/gt_1000_obj1/ckpt.pt --ddim-steps 4 --out runs/student/gt_1000_obj1.onnx
 cp runs/student/gt_1000_obj1.onnx models/student.onnx
 # 3. DDG depth for every demo frame (the shipped DDG, models/ddg, at DDIM 5; resumes by chunk if interrupted).
-python -m trainer ddg generate --demos runs/sim/demos_seen.zarr --steps 5 --threads 2 --batch 8
+python -m trainer ddg generate --demos runs/sim/demos_seen.zarr --steps 5 --threads 2 --batch 16
 # 4. The DDG student: the GT student fine-tuned on DDG depth (--init: its EMA weights and normalisers, a fresh
 #    optimiser and schedule), 8000 steps at lr 1e-4. Not shipped (models/student/README.md says why).
 python -m trainer student fit --demos runs/sim/demos_seen.zarr --depth-source ddg --out runs/student/ddg_ft_8k \

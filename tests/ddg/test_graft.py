@@ -5,7 +5,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from runtime.preprocess import DepthSpec
-from trainer.ddg.graft import HOLE_THRESHOLD, GraftError, decode, graft
+from trainer.ddg.graft import HOLE_THRESHOLD, GraftError, decode, encode, graft
 
 SPEC = DepthSpec()
 frames = arrays(np.uint16, (12, 16), elements=st.integers(0, 3000))
@@ -31,10 +31,21 @@ def test_holes_come_from_prediction_and_sensor_near_limit():
     assert (out == 900).sum() == 14
 
 
-def test_decode_threshold_is_on_the_normalised_scale():
+def test_decode_threshold_is_on_the_relative_scale():
     pred = np.array([[-1.0, HOLE_THRESHOLD - 1e-3, HOLE_THRESHOLD + 1e-3, 0.0, 0.5, 1.0, 1.7]], np.float32)
-    mm = decode(pred, SPEC)
-    assert mm.tolist() == [[0, 0, 300, 300, 900, 1500, 1500]]
+    mm = decode(pred[None], (np.array([0.25]), np.array([0.5])), SPEC)  # 0..1 -> 0.6..1.2 m
+    assert mm.tolist() == [[[0, 0, 600, 600, 900, 1200, 1200]]]
+
+
+@settings(max_examples=40, deadline=None)
+@given(depth=arrays(np.uint16, (6, 8), elements=st.integers(0, 2000)), lo=st.floats(0.0, 0.5),
+       span=st.floats(0.05, 0.5))
+def test_decode_inverts_encode_within_a_millimetre(depth, lo, span):
+    back = decode(encode(depth, (lo, span), SPEC)[None], (np.array([lo]), np.array([span])), SPEC)[0]
+    lo_mm, hi_mm = (round(1000 * (SPEC.near_m + v * (SPEC.far_m - SPEC.near_m))) for v in (lo, lo + span))
+    inside = (depth >= lo_mm + 1) & (depth <= hi_mm - 1)
+    assert np.all(back[depth == 0] == 0)
+    assert np.abs(back[inside].astype(int) - depth[inside]).max(initial=0) <= 1
 
 
 def test_graft_rejects_mismatched_inputs():

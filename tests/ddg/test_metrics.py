@@ -58,3 +58,12 @@ def test_hole_stats_on_a_known_frame():
     assert s["hole_size_px_p50_p90"][0] == 5.0  # sizes 1 and 9
     assert s["hole_rate_near_edges"] > s["hole_rate_flat"] > 0
     assert s["grad_jump_fraction"] > 0
+
+
+def test_void_as_far_fills_only_the_no_data_pixels():
+    from runtime.preprocess import DepthSpec
+    from trainer.ddg.simframes import void_as_far
+
+    sim = np.array([[[0, 900], [1200, 0]]], np.uint16)
+    out = void_as_far(sim, DepthSpec())
+    assert out.dtype == np.uint16 and out.tolist() == [[[1500, 900], [1200, 1500]]]

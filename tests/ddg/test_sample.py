@@ -52,19 +52,35 @@ def test_onnx_and_torch_samplers_agree(tiny_model, sims):
     assert np.abs(a - b).max() < 1e-3
 
 
-def test_ddim_with_a_perfect_noise_predictor_recovers_x0():
-    """eps_fn that knows x0 returns the exact noise of x_t; DDIM must then land on x0 in any step count."""
-    sched = ddim_scheduler(UNetConfig(), 5)
+@pytest.mark.parametrize("prediction", ["epsilon", "v_prediction"])
+def test_ddim_with_a_perfect_predictor_recovers_x0(prediction):
+    """A net that knows x0 returns the exact noise (or v) of x_t; DDIM must then land on x0 in any step
+    count."""
+    sched = ddim_scheduler(UNetConfig(prediction=prediction), 5)
     x0 = np.random.default_rng(1).uniform(-1, 1, (1, 1, 8, 8)).astype(np.float32)
     abar = sched.alphas_cumprod.numpy()
 
     def eps_fn(x, t):
         a = abar[t]
-        return ((x[:, :1] - np.sqrt(a) * x0) / np.sqrt(1 - a)).astype(np.float32)
+        eps = (x[:, :1] - np.sqrt(a) * x0) / np.sqrt(1 - a)
+        return (eps if prediction == "epsilon" else np.sqrt(a) * eps - np.sqrt(1 - a) * x0).astype(np.float32)
 
     noise = np.random.default_rng(2).standard_normal(x0.shape).astype(np.float32)
     out = ddim_sample(eps_fn, np.zeros((1, 8, 8), np.float32), noise, sched)
     assert np.abs(out - x0[:, 0]).max() < 1e-3
+
+
+def test_a_model_from_the_old_metric_eps_trainer_is_refused(tmp_path, tiny_model):
+    import json
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(tiny_model, old)
+    cfg = json.loads((old / "config.json").read_text())
+    del cfg["x0_scale"], cfg["unet"]["prediction"]
+    (old / "config.json").write_text(json.dumps(cfg))
+    with pytest.raises(ModelDirError, match="older trainer .*metric, prediction eps"):
+        load_config(old)
 
 
 def test_bad_step_count_and_missing_model(tmp_path):

@@ -3,7 +3,7 @@ import torch
 
 from trainer.ddg.bank import save_bank
 from trainer.ddg.model import UNetConfig, build_unet, ddpm_scheduler
-from trainer.ddg.train import FitConfig, fit, train_step
+from trainer.ddg.train import FitConfig, fit, train_step, training_target
 
 from .conftest import scene
 
@@ -13,7 +13,9 @@ def _tiny_bank(n=4):
     depth = np.stack([scene(rng) for _ in range(n)])
     depth[:, 40:50, 60:80] = 0  # a hole where every frame has one: learnable
     c = np.stack([np.linspace(-1, 1, 96 * 128).reshape(96, 128)] * n).astype(np.float16)
-    return {"depth_mm": depth, "c": c, "frame": np.arange(n), "names": np.array([f"f{i}" for i in range(n)])}
+    scale = np.tile(np.float32([0.2, 0.4]), (n, 1))  # 0.54-1.02 m on the relative target scale
+    return {"depth_mm": depth, "c": c, "scale": scale, "frame": np.arange(n),
+            "names": np.array([f"f{i}" for i in range(n)])}
 
 
 def _eval_loss(unet, sched, x0, c):
@@ -22,7 +24,7 @@ def _eval_loss(unet, sched, x0, c):
     k = torch.linspace(50, 900, len(x0)).long()
     with torch.no_grad():
         pred = unet(torch.cat([sched.add_noise(x0, eps, k), c], 1), k).sample
-    return float(torch.nn.functional.mse_loss(pred, eps))
+    return float(torch.nn.functional.mse_loss(pred, training_target(sched, x0, eps, k)))
 
 
 def test_a_tiny_model_overfits_a_tiny_set():

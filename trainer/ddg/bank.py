@@ -2,9 +2,10 @@
 
 Each frame yields ``crops`` random windows (size jittered around the policy's share of the stream) and a
 depth scale jitter (the real captures sit at 0.3-0.7 m, the simulated table at ~0.9 m). Flips are applied
-on the fly in training. The bank keeps the crop in sensor units (uint16 mm) and c = the prior of the
-temporally fused crop (float16); ``training_arrays`` gives x0 = ``normalise(crop)`` (holes -1, valid
-depth in [0, 1]). A bank is a plain .npz, so it travels to another machine without the raw data.
+on the fly in training. The bank keeps the crop in sensor units (uint16 mm), c = the prior of the
+temporally fused crop (float16) and that prior's ``frame_scale``; ``training_arrays`` gives x0 = the raw
+crop ``encode``d on c's scale (holes -1, valid depth in [0, 1]). A bank is a plain .npz, so it travels to
+another machine without the raw data.
 """
 
 from __future__ import annotations
@@ -16,9 +17,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from runtime.preprocess import crop_resize, normalise
+from runtime.preprocess import crop_resize
 
 from .data import POLICY_SPEC, RealFrame, crop_spec
+from .graft import encode
 from .prior import DepthPrior, temporal_fuse
 
 
@@ -47,11 +49,12 @@ def fused_frames(frames: list[RealFrame]) -> dict[str, np.ndarray]:
 
 
 def build_bank(frames: list[RealFrame], cfg: BankConfig = BankConfig()) -> dict[str, np.ndarray]:
-    """{"depth_mm": uint16 [N, H, W], "c": float16 [N, H, W], "frame": int [N], "names": str [F]}."""
+    """{"depth_mm": uint16 [N, H, W], "c": float16 [N, H, W], "scale": float32 [N, 2] (lo, span),
+    "frame": int [N], "names": str [F]}."""
     rng = np.random.default_rng(cfg.seed)
     fused = fused_frames(frames)
     prior = DepthPrior(POLICY_SPEC)
-    crops, c, idx = [], [], []
+    crops, c, scales, idx = [], [], [], []
     for i, f in enumerate(tqdm(frames, desc="crop bank", leave=False)):
         for _ in range(cfg.crops):
             s = crop_spec(*f.depth_mm.shape, scale=rng.uniform(*cfg.scale_range))
@@ -61,16 +64,21 @@ def build_bank(frames: list[RealFrame], cfg: BankConfig = BankConfig()) -> dict[
             raw, fus = (_scaled(crop_resize(d, s, win), k) for d in (f.depth_mm, fused[f.name]))
             if (raw > 0).mean() < 0.2:  # a window that is mostly hole teaches nothing about geometry
                 continue
+            prior_c, scale = prior.with_scale(fus)
             crops.append(raw)
-            c.append(prior(fus).astype(np.float16))
+            c.append(prior_c.astype(np.float16))
+            scales.append(scale)
             idx.append(i)
-    return {"depth_mm": np.stack(crops), "c": np.stack(c), "frame": np.array(idx),
+    return {"depth_mm": np.stack(crops), "c": np.stack(c), "scale": np.array(scales, np.float32),
+            "frame": np.array(idx),
             "names": np.array([f.name for f in frames])}
 
 
 def training_arrays(bank: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """(x0, c) float32 [N, H, W] on the generator's scale."""
-    x0 = np.stack([normalise(d, 0.001, POLICY_SPEC) for d in bank["depth_mm"]])
+    if "scale" not in bank:
+        raise ValueError("crop bank has no 'scale' array (built before the relative target); rebuild it")
+    x0 = np.stack([encode(d, s, POLICY_SPEC) for d, s in zip(bank["depth_mm"], bank["scale"], strict=True)])
     return x0, bank["c"].astype(np.float32)
 
 
@@ -79,6 +87,7 @@ def concat_banks(banks: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     offsets = np.cumsum([0] + [len(b["names"]) for b in banks[:-1]])
     return {"depth_mm": np.concatenate([b["depth_mm"] for b in banks]),
             "c": np.concatenate([b["c"] for b in banks]),
+            "scale": np.concatenate([b["scale"] for b in banks]),
             "frame": np.concatenate([b["frame"] + o for b, o in zip(banks, offsets, strict=True)]),
             "names": np.concatenate([b["names"] for b in banks])}
 

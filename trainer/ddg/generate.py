@@ -17,6 +17,7 @@ import zarr
 from tqdm import tqdm
 
 from .baselines import DEFAULT_MODEL
+from .model import model_id
 from .sample import Generator
 
 
@@ -100,7 +101,7 @@ def _open(path: str) -> zarr.Group:
 
 
 def _outputs(root: zarr.Group, cfg: GenerateConfig, shape: tuple[int, ...]):
-    settings = {"model": str(Path(cfg.model).resolve().name), "steps": cfg.steps, "seed": cfg.seed,
+    settings = {"model": model_id(cfg.model), "steps": cfg.steps, "seed": cfg.seed,
                 "chunk": cfg.chunk, **({"eta": cfg.eta} if cfg.eta else {})}  # stores made before eta resume
     previous = root.attrs.get("ddg")
     if previous is not None and previous != settings:

@@ -1,30 +1,47 @@
-"""Noise Grafting (paper eq. 9) and the decoding of generator output back to sensor units.
+"""Noise Grafting (paper eq. 9) and the generator's depth scale.
 
-The generator works on ``normalise``'s scale: valid depth in [0, 1] (near_m..far_m), holes at -1. A predicted
-pixel is a hole when its value is below ``HOLE_THRESHOLD`` = -0.5 (dimensionless, on that normalised scale):
-half way between "no data" (-1) and the nearest valid depth (0 = near_m). Grafting then keeps the simulator's
-exact depth wherever the generator did not predict a hole: ``d = d_sim * (1 - M) + d_pred * M`` with
-``d_pred = 0`` (uint16 "no data") under M. M also covers the sensor's near limit: simulated pixels closer than
-``near_m`` become holes, as a D4xx returns no depth below its min-z. Beyond ``far_m`` the simulator's value is
-kept (a D455 still measures there; ``normalise`` clips it).
+The generator works on a per-frame relative scale, the one its condition ``c`` has: valid depth in [0, 1] is
+``(c + 1) / 2`` of the same frame (``frame_scale``: its 1st-99th percentile of ``normalise``d depth), holes
+are -1. So for the geometry it only has to copy ``c``; what it learns is where a D4xx loses depth. (A metric
+target would ask it to guess absolute depth from relative ``c``, which it cannot.) ``encode`` makes training
+targets from real crops, ``decode`` turns output back into uint16 mm with the simulated frame's own scale.
+
+A predicted pixel is a hole when its value is below ``HOLE_THRESHOLD`` = -0.5 (dimensionless, on that
+scale): half way between "no data" (-1) and the nearest valid depth of the frame (0). Grafting then keeps the
+simulator's exact depth wherever the generator did not predict a hole: ``d = d_sim * (1 - M) + d_pred * M``
+with ``d_pred = 0`` (uint16 "no data") under M. M also covers the sensor's near limit: simulated pixels
+closer than ``near_m`` become holes, as a D4xx returns no depth below its min-z. Beyond ``far_m`` the
+simulator's value is kept (a D455 still measures there; ``normalise`` clips it).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from runtime.preprocess import DepthSpec
+from runtime.preprocess import DepthSpec, normalise
 
 HOLE_THRESHOLD = -0.5
+X0_SCALE = "relative"
+"""Recorded in a model's config: models trained on another target scale (the first: metric) are refused."""
 
 
 class GraftError(ValueError):
     """Mismatched or non-uint16 depth maps handed to grafting."""
 
 
-def decode(pred: np.ndarray, spec: DepthSpec, threshold: float = HOLE_THRESHOLD) -> np.ndarray:
-    """Generator output (normalised scale, any float array) -> uint16 mm, holes = 0."""
-    metres = spec.near_m + np.clip(pred, 0.0, 1.0) * (spec.far_m - spec.near_m)
+def encode(depth_mm: np.ndarray, scale: tuple[float, float], spec: DepthSpec) -> np.ndarray:
+    """uint16 mm frame -> float32 on the relative scale ``scale`` = (lo, span) of ``normalise``d depth."""
+    lo, span = scale
+    rel = np.clip((normalise(depth_mm, 0.001, spec) - np.float32(lo)) / np.float32(span), 0.0, 1.0)
+    return np.where(depth_mm == 0, np.float32(-1.0), rel).astype(np.float32)
+
+
+def decode(pred: np.ndarray, scale: tuple[np.ndarray, np.ndarray], spec: DepthSpec,
+           threshold: float = HOLE_THRESHOLD) -> np.ndarray:
+    """Generator output [B, H, W] on each frame's relative scale (``scale`` = lo [B], span [B]) -> uint16 mm,
+    holes = 0."""
+    lo, span = (np.asarray(a, np.float32)[:, None, None] for a in scale)
+    metres = spec.near_m + (lo + np.clip(pred, 0.0, 1.0) * span) * np.float32(spec.far_m - spec.near_m)
     mm = np.clip(np.rint(metres * 1000.0), 1, 65535).astype(np.uint16)
     return np.where(pred < threshold, np.uint16(0), mm)
 

@@ -21,11 +21,11 @@ import numpy as np
 import torch
 
 from .baselines import DEFAULT_MODEL, inpaint, randnoise
-from .data import RealDataError, load_real_dir, policy_crop, split
+from .data import POLICY_SPEC, RealDataError, load_real_dir, policy_crop, split
 from .features import RandomEncoder, features, fid, kid
 from .holestats import hole_stats
 from .plots import plot_grid, plot_holes, plot_tsne
-from .simframes import from_demos, rendered
+from .simframes import from_demos, rendered, void_as_far
 
 
 @dataclass(frozen=True)
@@ -54,6 +54,9 @@ class MetricsConfig:
     """Bootstrap replicates for the FID/KID 95% intervals (0 = none)."""
     threads: int = 2
     """torch and onnxruntime CPU threads."""
+    void_as_far: bool = False
+    """Diagnostic: give the simulated frames' "no data" pixels (in hil_sim's view: the void past the table,
+    beyond the D455's range) the far depth before anything is judged, as if the world had a wall in range."""
 
 
 def run_metrics(cfg: MetricsConfig) -> dict:
@@ -61,6 +64,8 @@ def run_metrics(cfg: MetricsConfig) -> dict:
     rng = np.random.default_rng(cfg.seed)
     (ref, ref_groups), extra_real = _real_sets(cfg, rng)
     sim = from_demos(cfg.demos, cfg.sim_frames) if cfg.demos else rendered(cfg.sim_frames, cfg.seed)
+    if cfg.void_as_far:
+        sim = void_as_far(sim, POLICY_SPEC)
     sim_groups = np.arange(len(sim))
     noisy = np.stack([randnoise(d, rng) for d in sim])
     frames = {**extra_real, **{k: (v, sim_groups) for k, v in (

@@ -6,6 +6,7 @@ weights) and ``unet.onnx`` (the same network for onnxruntime). Nothing is pickle
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -16,6 +17,7 @@ from diffusers import DDIMScheduler, DDPMScheduler, UNet2DModel
 from runtime.preprocess import DepthSpec
 
 from .data import POLICY_SPEC
+from .graft import X0_SCALE
 
 
 class ModelDirError(ValueError):
@@ -34,10 +36,17 @@ class UNetConfig:
     """DDPM diffusion steps used in training."""
     beta_schedule: str = "squaredcos_cap_v2"
     """diffusers beta schedule name."""
+    prediction: str = "v_prediction"
+    """What the network predicts: "v_prediction" (v = sqrt(abar) eps - sqrt(1 - abar) d_0, eq. 8's loss
+    reweighted by 1 + 1/SNR) or "epsilon" (eq. 8 as written). With epsilon, the d_0 estimate at the first
+    DDIM steps (SNR ~ 0 under this schedule) divides the noise error by sqrt(abar) ~ 0.02-0.15: measured,
+    those steps alone turned ~17% of pixels into holes where real frames have 3% (docs/ddg.md)."""
 
     def __post_init__(self) -> None:
         if not self.channels or any(c % 8 for c in self.channels):
             raise ModelDirError(f"channels must be multiples of 8 (GroupNorm groups), got {self.channels}")
+        if self.prediction not in ("epsilon", "v_prediction"):
+            raise ModelDirError(f"prediction must be epsilon or v_prediction, got {self.prediction!r}")
 
 
 def build_unet(cfg: UNetConfig, spec: DepthSpec = POLICY_SPEC) -> UNet2DModel:
@@ -52,7 +61,7 @@ def build_unet(cfg: UNetConfig, spec: DepthSpec = POLICY_SPEC) -> UNet2DModel:
 def ddpm_scheduler(cfg: UNetConfig) -> DDPMScheduler:
     # clip_sample keeps the x0 estimate in the data range [-1, 1] (holes at -1, valid depth in [0, 1]).
     return DDPMScheduler(num_train_timesteps=cfg.train_timesteps, beta_schedule=cfg.beta_schedule,
-                         prediction_type="epsilon", clip_sample=True, clip_sample_range=1.0)
+                         prediction_type=cfg.prediction, clip_sample=True, clip_sample_range=1.0)
 
 
 def ddim_scheduler(cfg: UNetConfig, steps: int) -> DDIMScheduler:
@@ -79,7 +88,7 @@ def save_model(out: Path, unet: UNet2DModel, cfg: UNetConfig, spec: DepthSpec, e
 
     out.mkdir(parents=True, exist_ok=True)
     save_file({k: v.contiguous() for k, v in unet.state_dict().items()}, out / "unet.safetensors")
-    config = {"unet": asdict(cfg), "depth_spec": spec.to_dict(), **extra}
+    config = {"unet": asdict(cfg), "depth_spec": spec.to_dict(), "x0_scale": X0_SCALE, **extra}
     (out / "config.json").write_text(json.dumps(config, indent=1))
     export_onnx(unet, spec, out / "unet.onnx")
 
@@ -89,9 +98,23 @@ def load_config(model_dir: str | Path) -> dict:
     if not f.is_file():
         raise ModelDirError(f"{model_dir}: no config.json (not a DDG model directory)")
     raw = json.loads(f.read_text())
+    if raw.get("x0_scale") != X0_SCALE or "prediction" not in raw["unet"]:
+        old = raw.get("x0_scale", "metric"), raw["unet"].get("prediction", "eps")
+        was = f"target scale {old[0]}, prediction {old[1]}"
+        raise ModelDirError(f"{model_dir}: made by an older trainer ({was}); this version decodes the "
+                            f"{X0_SCALE} scale and needs the prediction type: retrain it")
     raw["unet"] = UNetConfig(**{**raw["unet"], "channels": tuple(raw["unet"]["channels"])})
     raw["depth_spec"] = DepthSpec.from_dict(raw["depth_spec"])
     return raw
+
+
+def model_id(model_dir: str | Path) -> str:
+    """Directory name + the first 12 hex digits of the ONNX weights' sha256: two trainings of one
+    ``models/ddg`` differ, so a store's record of which generator made its depth can tell them apart."""
+    f = Path(model_dir) / "unet.onnx"
+    if not f.is_file():
+        raise ModelDirError(f"{model_dir}: no unet.onnx")
+    return f"{Path(model_dir).resolve().name}@{hashlib.sha256(f.read_bytes()).hexdigest()[:12]}"
 
 
 def load_unet(model_dir: str | Path) -> tuple[UNet2DModel, dict]:

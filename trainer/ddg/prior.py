@@ -40,12 +40,18 @@ class PriorProvider(Protocol):
         ...
 
 
-def relative_depth(depth: np.ndarray, lo_pct: float = 1.0, hi_pct: float = 99.0) -> np.ndarray:
-    """Per-frame affine map of a hole-free depth-like array to [-1, 1] (robust percentiles, clipped)."""
+def frame_scale(depth: np.ndarray, lo_pct: float = 1.0, hi_pct: float = 99.0) -> tuple[float, float]:
+    """(lo, span): the robust percentile range of a hole-free depth-like array, which ``relative_depth``
+    maps to [-1, 1]. The generator's target and output live on the same per-frame scale (``graft``)."""
     if not np.all(np.isfinite(depth)):
         raise PriorError("prior input holds NaN/inf")
     lo, hi = np.percentile(depth, [lo_pct, hi_pct])
-    span = max(float(hi - lo), 1e-6)
+    return float(lo), max(float(hi - lo), 1e-6)
+
+
+def relative_depth(depth: np.ndarray, scale: tuple[float, float] | None = None) -> np.ndarray:
+    """Per-frame affine map of a hole-free depth-like array to [-1, 1] (``frame_scale``, clipped)."""
+    lo, span = frame_scale(depth) if scale is None else scale
     return np.clip(2.0 * (depth - lo) / span - 1.0, -1.0, 1.0).astype(np.float32)
 
 
@@ -86,9 +92,16 @@ class DepthPrior:
         self.spec, self.depth_scale = spec, depth_scale
 
     def __call__(self, depth_mm: np.ndarray, rgb: np.ndarray | None = None) -> np.ndarray:
+        return self.with_scale(depth_mm)[0]
+
+    def with_scale(self, depth_mm: np.ndarray) -> tuple[np.ndarray, tuple[float, float]]:
+        """(c, its ``frame_scale`` on the normalised filled depth): the scale turns the generator's
+        relative output back into this frame's metric depth."""
         if depth_mm.dtype != np.uint16 or depth_mm.ndim != 2:
             raise PriorError(f"prior wants a 2-D uint16 mm frame, got {depth_mm.dtype} {depth_mm.shape}")
-        return relative_depth(normalise(fill_holes(depth_mm), self.depth_scale, self.spec))
+        filled = normalise(fill_holes(depth_mm), self.depth_scale, self.spec)
+        scale = frame_scale(filled)
+        return relative_depth(filled, scale), scale
 
 
 class OnnxPrior:

@@ -113,10 +113,11 @@ class Generator:
 
     def __call__(self, sim_mm: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         self.check_frames(sim_mm)
-        c = np.stack([self.prior(d) for d in sim_mm])
+        c, scale = zip(*(self.prior.with_scale(d) for d in sim_mm), strict=True)
+        c = np.stack(c)
         noise = frame_noise(self.seed, indices, sim_mm.shape[1:])
         pred = ddim_sample(self.eps, c, noise, self.scheduler, self.eta,
                            lambda k: frame_noise(self.seed, indices, sim_mm.shape[1:], k))
-        pred_mm = decode(pred, self.spec, self.threshold)
+        pred_mm = decode(pred, tuple(np.array(scale).T), self.spec, self.threshold)
         grafted = np.stack([graft(s, p, self.spec) for s, p in zip(sim_mm, pred_mm, strict=True)])
         return grafted, pred_mm

@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 from tqdm import tqdm
 
-from runtime.preprocess import crop_resize
+from runtime.preprocess import DepthSpec, crop_resize
+
+
+def void_as_far(sim_mm: np.ndarray, spec: DepthSpec) -> np.ndarray:
+    """Simulated "no data" pixels (the void past hil_sim's table, beyond the D455's range) -> ``far_m``: the
+    frame as it would be with a wall in range behind the table (a metrics diagnostic)."""
+    return np.where(sim_mm == 0, np.uint16(round(1000 * spec.far_m)), sim_mm)
 
 
 def from_demos(path: str, n: int) -> np.ndarray:

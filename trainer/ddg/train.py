@@ -59,6 +59,8 @@ class FitConfig:
     so a quarter-size patch gives 4x the steps on a CPU budget; generation runs on whole frames."""
     channels: tuple[int, ...] = UNetConfig.channels
     """U-Net widths per level."""
+    prediction: str = UNetConfig.prediction
+    """What the U-Net predicts: v_prediction or epsilon (see trainer/ddg/model.py)."""
 
 
 def fit(cfg: FitConfig) -> Path:
@@ -66,7 +68,7 @@ def fit(cfg: FitConfig) -> Path:
     run, out = Path(cfg.run), Path(cfg.out)
     run.mkdir(parents=True, exist_ok=True)
     bank, names = _bank(cfg, run)
-    ucfg = UNetConfig(channels=cfg.channels)
+    ucfg = UNetConfig(channels=cfg.channels, prediction=cfg.prediction)
     unet = build_unet(ucfg).to(cfg.device)
     ema = copy.deepcopy(unet).requires_grad_(False)
     opt = torch.optim.AdamW(unet.parameters(), lr=cfg.lr, weight_decay=1e-4)
@@ -101,7 +103,8 @@ def fit(cfg: FitConfig) -> Path:
 
 def train_step(unet: torch.nn.Module, opt: torch.optim.Optimizer, noise_sched, x0_all: torch.Tensor,
                c_all: torch.Tensor, cfg: FitConfig, step: int) -> float:
-    """One eq.-8 step: eps ~ N(0, I), k ~ U{0..K-1}, minimise ||eps - eps_theta(d_k ⊕ c, k)||^2."""
+    """One eq.-8 step: eps ~ N(0, I), k ~ U{0..K-1}, minimise ||target - net(d_k ⊕ c, k)||^2 with target eps
+    or, for a v-prediction model, v = sqrt(abar_k) eps - sqrt(1 - abar_k) d_0."""
     g = torch.Generator().manual_seed(cfg.seed * 1_000_003 + step)
     idx = torch.randint(0, len(x0_all), (cfg.batch,), generator=g)
     x0, c = _patches(x0_all[idx, None], c_all[idx, None], cfg.patch, g)
@@ -111,12 +114,18 @@ def train_step(unet: torch.nn.Module, opt: torch.optim.Optimizer, noise_sched, x
     eps = torch.randn(x0.shape, generator=g).to(x0.device)
     k = torch.randint(0, noise_sched.config.num_train_timesteps, (cfg.batch,), generator=g).to(x0.device)
     xk = noise_sched.add_noise(x0, eps, k)
-    loss = torch.nn.functional.mse_loss(unet(torch.cat([xk, c], 1), k).sample, eps)
+    loss = torch.nn.functional.mse_loss(unet(torch.cat([xk, c], 1), k).sample,
+                                        training_target(noise_sched, x0, eps, k))
     opt.zero_grad(set_to_none=True)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(unet.parameters(), 1.0)
     opt.step()
     return loss.item()
+
+
+def training_target(noise_sched, x0: torch.Tensor, eps: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
+    """What the network must output for x_k = add_noise(x0, eps, k): eps, or v for a v-prediction model."""
+    return eps if noise_sched.config.prediction_type == "epsilon" else noise_sched.get_velocity(x0, eps, k)
 
 
 def _patches(x0: torch.Tensor, c: torch.Tensor, patch: tuple[int, ...], g: torch.Generator
