@@ -33,7 +33,7 @@ def test_holes_come_from_prediction_and_sensor_near_limit():
 
 def test_decode_threshold_is_on_the_relative_scale():
     pred = np.array([[-1.0, HOLE_THRESHOLD - 1e-3, HOLE_THRESHOLD + 1e-3, 0.0, 0.5, 1.0, 1.7]], np.float32)
-    mm = decode(pred[None], (np.array([0.25]), np.array([0.5])), SPEC)  # 0..1 -> 0.6..1.2 m
+    mm = decode(pred[None], np.array([[0.25, 0.5]]), SPEC)  # 0..1 -> 0.6..1.2 m
     assert mm.tolist() == [[[0, 0, 600, 600, 900, 1200, 1200]]]
 
 
@@ -41,7 +41,7 @@ def test_decode_threshold_is_on_the_relative_scale():
 @given(depth=arrays(np.uint16, (6, 8), elements=st.integers(0, 2000)), lo=st.floats(0.0, 0.5),
        span=st.floats(0.05, 0.5))
 def test_decode_inverts_encode_within_a_millimetre(depth, lo, span):
-    back = decode(encode(depth, (lo, span), SPEC)[None], (np.array([lo]), np.array([span])), SPEC)[0]
+    back = decode(encode(depth, (lo, span), SPEC)[None], np.array([[lo, span]]), SPEC)[0]
     lo_mm, hi_mm = (round(1000 * (SPEC.near_m + v * (SPEC.far_m - SPEC.near_m))) for v in (lo, lo + span))
     inside = (depth >= lo_mm + 1) & (depth <= hi_mm - 1)
     assert np.all(back[depth == 0] == 0)

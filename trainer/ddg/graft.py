@@ -20,6 +20,8 @@ import numpy as np
 
 from runtime.preprocess import DepthSpec, normalise
 
+from .prior import relative_depth
+
 HOLE_THRESHOLD = -0.5
 X0_SCALE = "relative"
 """Recorded in a model's config: models trained on another target scale (the first: metric) are refused."""
@@ -30,17 +32,17 @@ class GraftError(ValueError):
 
 
 def encode(depth_mm: np.ndarray, scale: tuple[float, float], spec: DepthSpec) -> np.ndarray:
-    """uint16 mm frame -> float32 on the relative scale ``scale`` = (lo, span) of ``normalise``d depth."""
-    lo, span = scale
-    rel = np.clip((normalise(depth_mm, 0.001, spec) - np.float32(lo)) / np.float32(span), 0.0, 1.0)
+    """uint16 mm frame -> float32 on the relative scale ``scale`` = (lo, span) of ``normalise``d depth: the
+    condition's own map (``relative_depth``) moved from [-1, 1] to [0, 1], holes -1."""
+    rel = (relative_depth(normalise(depth_mm, 0.001, spec), scale) + 1.0) / 2.0
     return np.where(depth_mm == 0, np.float32(-1.0), rel).astype(np.float32)
 
 
-def decode(pred: np.ndarray, scale: tuple[np.ndarray, np.ndarray], spec: DepthSpec,
-           threshold: float = HOLE_THRESHOLD) -> np.ndarray:
-    """Generator output [B, H, W] on each frame's relative scale (``scale`` = lo [B], span [B]) -> uint16 mm,
-    holes = 0."""
-    lo, span = (np.asarray(a, np.float32)[:, None, None] for a in scale)
+def decode(pred: np.ndarray, scales: np.ndarray, spec: DepthSpec, threshold: float = HOLE_THRESHOLD
+           ) -> np.ndarray:
+    """Generator output [B, H, W] on each frame's relative scale (``scales`` [B, 2] = lo, span, as a crop bank
+    stores them) -> uint16 mm, holes = 0."""
+    lo, span = (np.asarray(scales, np.float32)[:, i, None, None] for i in (0, 1))
     metres = spec.near_m + (lo + np.clip(pred, 0.0, 1.0) * span) * np.float32(spec.far_m - spec.near_m)
     mm = np.clip(np.rint(metres * 1000.0), 1, 65535).astype(np.uint16)
     return np.where(pred < threshold, np.uint16(0), mm)

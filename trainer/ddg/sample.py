@@ -118,6 +118,6 @@ class Generator:
         noise = frame_noise(self.seed, indices, sim_mm.shape[1:])
         pred = ddim_sample(self.eps, c, noise, self.scheduler, self.eta,
                            lambda k: frame_noise(self.seed, indices, sim_mm.shape[1:], k))
-        pred_mm = decode(pred, tuple(np.array(scale).T), self.spec, self.threshold)
+        pred_mm = decode(pred, np.array(scale), self.spec, self.threshold)
         grafted = np.stack([graft(s, p, self.spec) for s, p in zip(sim_mm, pred_mm, strict=True)])
         return grafted, pred_mm
