@@ -1,8 +1,10 @@
 import numpy as np
 
+from runtime.preprocess import DepthSpec
 from trainer.ddg.features import RandomEncoder, encoder_input, features, fid, kid
 from trainer.ddg.holestats import hole_stats
 from trainer.ddg.metrics import bootstrap_ci
+from trainer.ddg.simframes import void_as_far
 
 from .conftest import scene
 
@@ -61,9 +63,6 @@ def test_hole_stats_on_a_known_frame():
 
 
 def test_void_as_far_fills_only_the_no_data_pixels():
-    from runtime.preprocess import DepthSpec
-    from trainer.ddg.simframes import void_as_far
-
     sim = np.array([[[0, 900], [1200, 0]]], np.uint16)
     out = void_as_far(sim, DepthSpec())
     assert out.dtype == np.uint16 and out.tolist() == [[[1500, 900], [1200, 1500]]]

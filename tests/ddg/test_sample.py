@@ -1,3 +1,6 @@
+import json
+import shutil
+
 import numpy as np
 import pytest
 
@@ -71,9 +74,6 @@ def test_ddim_with_a_perfect_predictor_recovers_x0(prediction):
 
 
 def test_a_model_from_the_old_metric_eps_trainer_is_refused(tmp_path, tiny_model):
-    import json
-    import shutil
-
     old = tmp_path / "old"
     shutil.copytree(tiny_model, old)
     cfg = json.loads((old / "config.json").read_text())
