@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hil_sim import report
+from runtime.preprocess import RESTORE_METHODS
 from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT
 
 REPO = Path(__file__).resolve().parents[1]
@@ -47,6 +48,7 @@ class Run:
     robot: str = DEFAULT_ROBOT
     camera_hz: float = 15.0
     sensor: str = "clean"
+    restore: str = "none"
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
@@ -64,6 +66,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
                    help=f"simulated D455 frame rate (default 15; {STEREO_CAMERA_HZ:g} with --sensor stereo)")
     p.add_argument("--sensor", choices=("clean", "stereo"), default="clean",
                    help="depth the camera publishes: exact (clean) or the active-stereo model")
+    p.add_argument("--restore", choices=RESTORE_METHODS, default="none",
+                   help="the runtime's hole restoration (runtime --restore; default none)")
     args = p.parse_args(argv)
     if args.camera_hz is None:
         args.camera_hz = STEREO_CAMERA_HZ if args.sensor == "stereo" else 15.0
@@ -107,7 +111,7 @@ def run_runtime(run: Run) -> tuple[int, report.Usage]:
     """Run the real runtime process to completion; its exit code and resource use."""
     cmd = [sys.executable, "-m", "runtime", "--model", str(run.model), "--camera", f"hil:{run.camera}",
            "--robot", run.robot, "--rate", str(run.rate_hz), "--seconds", str(run.seconds),
-           "--metrics", str(run.report_dir / "ticks.jsonl")]
+           "--metrics", str(run.report_dir / "ticks.jsonl"), "--restore", run.restore]
     path = os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
     env = dict(os.environ, PYTHONPATH=path)
     with open(run.report_dir / "runtime.log", "w") as log:
@@ -143,6 +147,7 @@ def benchmark(run: Run) -> dict:
         sim_stats = {"camera_fps": round(sim.camera.published / elapsed, 2),
                      "render_ms_mean": round(sim.camera.render_ms_mean, 2),
                      "hidden_lag_ms_mean": round(sim.camera.hidden_lag_ms_mean, 2), "sensor": run.sensor,
+                     "restore": run.restore,
                      "state_hz": round((sim.driver.steps - steps0) / elapsed, 1),
                      "physics_lag_s": round(sim.physics.lag_s, 3),
                      "driver_error": repr(sim.driver_error) if sim.driver_error else None}
@@ -165,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse(argv)
     try:
         run = Run(args.seconds, args.rate, resolve_model(args.model), args.report, args.camera, args.robot,
-                  args.camera_hz, args.sensor)
+                  args.camera_hz, args.sensor, args.restore)
         doc = benchmark(run)
     except (BenchmarkError, report.ReportError, ValueError) as exc:
         print(f"hil_sim: {exc}", file=sys.stderr)

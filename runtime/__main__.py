@@ -16,6 +16,7 @@ from contextlib import ExitStack
 from runtime.cameras import CameraError, open_camera
 from runtime.loop import EXIT_CAMERA, ControlLoop, LoopConfig, RobotLink
 from runtime.policy import Policy, PolicyError, SessionConfig
+from runtime.preprocess import RESTORE_METHODS
 from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT
 from runtime.transport import CurveKeys, TransportError
 
@@ -37,6 +38,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--seconds", type=float, metavar="S", help="stop cleanly after S seconds (default: run "
                    "until SIGINT/SIGTERM)")
     p.add_argument("--metrics", metavar="PATH", help="write one JSON line per tick (times in monotonic s)")
+    p.add_argument("--restore", choices=RESTORE_METHODS, default="none",
+                   help="fill depth holes before the policy: inpaint (OpenCV) for a policy trained on clean "
+                        "depth; none (default) for a DDG student, which learnt to read them")
     p.add_argument("--seed", type=int, default=0, help="seed of the DDIM start noise (default %(default)s)")
     p.add_argument("--threads", type=int, default=SessionConfig.intra_op_threads,
                    help="onnxruntime intra-op threads (default %(default)s, measured in docs/runtime.md)")
@@ -52,7 +56,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     try:
         policy = Policy(args.model, SessionConfig(args.threads, args.spin), seed=args.seed)
-        config = LoopConfig(rate_hz=args.rate or policy.metadata.control_rate_hz, seconds=args.seconds)
+        config = LoopConfig(rate_hz=args.rate or policy.metadata.control_rate_hz, seconds=args.seconds,
+                            restore=args.restore)
         keys = CurveKeys.from_files(args.curve_secret, args.curve_server) if args.curve_secret else None
     except (PolicyError, TransportError, ValueError) as exc:
         return _fail(exc, EXIT_USAGE)

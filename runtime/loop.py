@@ -34,7 +34,7 @@ import zmq
 
 from runtime.cameras import Camera, CameraEnded, CameraError, CameraStalled, Frame
 from runtime.policy import NanActionError, Policy, PolicyError
-from runtime.preprocess import FrameStack, preprocess
+from runtime.preprocess import RESTORE_METHODS, FrameStack, preprocess
 from runtime.protocol import DEFAULT_ROBOT, DOF, Encoder, Message, robot_endpoints
 from runtime.transport import CurveKeys, Newest, connect, send
 
@@ -73,6 +73,9 @@ class LoopConfig:
     """Share of the period between a tick's frame cutoff and its deadline: preprocessing + inference +
     send must fit in it. It costs no frame age (work starts on the frame's arrival), only sets how late
     the slowest inference may finish."""
+    restore: str = "none"
+    """Hole restoration before the policy (``runtime.preprocess.RESTORE_METHODS``); ``inpaint`` is for a
+    policy trained on clean depth."""
 
     def __post_init__(self) -> None:
         for name in ("rate_hz", "validity_periods", "startup_timeout_s", "camera_give_up_s", "robot_stale_s",
@@ -83,6 +86,8 @@ class LoopConfig:
             raise ValueError(f"loop setting work_budget must be in (0, 1), got {self.work_budget}")
         if self.seconds is not None and not self.seconds > 0:
             raise ValueError(f"loop setting seconds must be positive, got {self.seconds}")
+        if self.restore not in RESTORE_METHODS:
+            raise ValueError(f"loop setting restore must be one of {RESTORE_METHODS}, got {self.restore!r}")
 
     @property
     def period(self) -> float:
@@ -242,7 +247,8 @@ class ControlLoop:
                                           f"{self.clock() - self._frame.t_receive:.3f} s")
         elif not problems:
             tick.t_capture, tick.t_receive, tick.frame = frame.t_capture, frame.t_receive, frame.number
-            obs = self.stack.push(preprocess(frame.depth, frame.depth_scale, self.spec))
+            depth = preprocess(frame.depth, frame.depth_scale, self.spec, restore=self.config.restore)
+            obs = self.stack.push(depth)
             tick.t_preprocess = self.clock()
             if needs_inference:
                 problems = self._infer(obs, state, tick)

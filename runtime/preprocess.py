@@ -7,11 +7,13 @@ Pipeline (each step its own function so the dataset path can stop half way):
    scaled here to the 848x480 stream). Resizing is nearest-neighbour on purpose: averaging would blend the
    0 ("no data") pixels into their neighbours and invent flying pixels that the sensor never produced.
    Demos and DDG output are stored after this step, still in sensor units (uint16 millimetres).
-2. ``normalise``: uint16 -> float32. Valid depth is clipped to [near_m, far_m] and mapped to [0, 1];
+2. ``restore_holes`` (deploy-time option, ``runtime --restore``; default ``none``): fill the holes at the
+   policy resolution before the policy sees them, for a policy trained on clean depth.
+3. ``normalise``: uint16 -> float32. Valid depth is clipped to [near_m, far_m] and mapped to [0, 1];
    0 ("no data") becomes ``invalid_value`` (-1), outside the valid range, so the network can tell
    "nothing measured" from "very near".
 
-``preprocess`` = ``normalise(crop_resize(...))``; tests prove the two paths are bit-identical.
+``preprocess`` = ``normalise(restore_holes(crop_resize(...)))``; tests prove the two paths are bit-identical.
 """
 
 from __future__ import annotations
@@ -86,6 +88,23 @@ def crop_resize(raw: np.ndarray, spec: DepthSpec, window: tuple[int, int] | None
     return raw[np.ix_(rows, cols)]
 
 
+RESTORE_METHODS = ("none", "inpaint")
+
+
+def restore_holes(depth: np.ndarray, method: str = "none") -> np.ndarray:
+    """uint16 depth with its 0 pixels filled by ``method``: ``none`` keeps them (a DDG student learnt to
+    read them); ``inpaint`` is OpenCV's Navier-Stokes inpainting, radius 3 px (DexGraspNet 2.0's
+    deploy-time restoration for a clean-depth policy). A frame with no valid pixel is returned as is."""
+    if method not in RESTORE_METHODS:
+        raise PreprocessError(f"unknown hole restoration {method!r}; choose one of {RESTORE_METHODS}")
+    holes = depth == 0
+    if method == "none" or not holes.any() or holes.all():
+        return depth
+    import cv2  # only deployments that restore pay for OpenCV's import
+
+    return cv2.inpaint(depth, holes.astype(np.uint8), 3, cv2.INPAINT_NS)
+
+
 def normalise(depth: np.ndarray, depth_scale: float, spec: DepthSpec) -> np.ndarray:
     """uint16 depth in sensor units (``depth_scale`` metres per unit) -> float32 policy values."""
     if depth.dtype != np.uint16:
@@ -99,9 +118,9 @@ def normalise(depth: np.ndarray, depth_scale: float, spec: DepthSpec) -> np.ndar
 
 
 def preprocess(raw: np.ndarray, depth_scale: float, spec: DepthSpec,
-               window: tuple[int, int] | None = None) -> np.ndarray:
+               window: tuple[int, int] | None = None, restore: str = "none") -> np.ndarray:
     """Raw sensor frame -> float32 [out_height, out_width] policy input."""
-    return normalise(crop_resize(raw, spec, window), depth_scale, spec)
+    return normalise(restore_holes(crop_resize(raw, spec, window), restore), depth_scale, spec)
 
 
 class FrameStack:

@@ -1,13 +1,15 @@
 """``python -m trainer evaluate``: closed-loop grasp success of a policy in the simulated world.
 
 Episodes cycle through the chosen object kinds (equal counts per kind) with seeds seed, seed+1, ...;
-prints a per-object table and writes {"success_rate", "episodes", "per_object": {kind: rate}, ...} as JSON.
+prints a per-object table and writes {"success_rate", "ci95", "episodes", "per_object": {kind: rate}, ...} as
+JSON; ``ci95`` is the Wilson score interval of the success rate.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -16,6 +18,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from hil_sim.objects import GROUPS, ObjectError, resolve
+from runtime.preprocess import RESTORE_METHODS
 from trainer.policies import NEEDS_DEPTH, PolicyError, parse
 from trainer.sim.env import EnvConfig
 from trainer.sim.rollout import Job, rollouts
@@ -31,6 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="depth sensor model seen by the policy: clean | stereo[:PARAMS] | randnoise | "
                         "inpaint | ddg[:model=DIR,steps=K] | ddg_nograft[:...] "
                         "(DDG default: models/ddg, 10 DDIM steps)")
+    p.add_argument("--restore", choices=RESTORE_METHODS, default="none",
+                   help="the runtime's hole restoration applied to what the sensor gives (runtime --restore)")
     p.add_argument("--episodes", type=int, default=60, help="total episodes, spread evenly over the kinds")
     p.add_argument("--seed", type=int, default=10_000, help="seed of the first episode")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes")
@@ -49,29 +54,42 @@ def object_list(spec: str) -> tuple[str, ...]:
     return kinds
 
 
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95 % Wilson score interval of a success rate: stays inside [0, 1] and is sensible at 0 or n
+    successes, where the normal approximation collapses to a point."""
+    if n < 1:
+        raise ValueError("a confidence interval needs at least one episode")
+    p, z2 = successes / n, z * z
+    centre = (p + z2 / (2 * n)) / (1 + z2 / n)
+    half = z * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n)) / (1 + z2 / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
 def evaluate(policy: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 10_000, workers: int = 1,
-             sensor: str = "clean", randomise: bool = True) -> dict:
+             sensor: str = "clean", restore: str = "none", randomise: bool = True) -> dict:
     kind, _ = parse(policy)
     config = EnvConfig(objects=kinds, randomise=randomise, render_depth=NEEDS_DEPTH[kind])
     jobs = [Job(seed + i, kinds[i % len(kinds)]) for i in range(episodes)]
     per: dict[str, list[bool]] = {k: [] for k in kinds}
     steps, start = [], time.perf_counter()
-    for r in tqdm(rollouts(config, policy, jobs, workers=workers, sensor_spec=sensor), total=episodes,
-                  desc=f"evaluate {policy}", unit="ep"):
+    runs = rollouts(config, policy, jobs, workers=workers, sensor_spec=sensor, restore=restore)
+    for r in tqdm(runs, total=episodes, desc=f"evaluate {policy}", unit="ep"):
         per[r.kind].append(r.success)
         steps.append(r.steps)
     total = sum(map(sum, per.values()))
-    return {"success_rate": total / max(1, episodes), "episodes": episodes,
-            "per_object": {k: sum(v) / len(v) for k, v in per.items() if v},
-            "policy": policy, "sensor": sensor, "objects": list(kinds), "seed": seed,
+    return {"success_rate": total / episodes, "ci95": [round(b, 4) for b in wilson_interval(total, episodes)],
+            "episodes": episodes, "per_object": {k: sum(v) / len(v) for k, v in per.items() if v},
+            "policy": policy, "sensor": sensor, "restore": restore, "objects": list(kinds), "seed": seed,
             "mean_steps": sum(steps) / max(1, len(steps)), "seconds": round(time.perf_counter() - start, 1)}
 
 
 def table(result: dict) -> str:
     rows = [f"{'object':<12} {'success':>8}"]
     rows += [f"{k:<12} {v:>8.1%}" for k, v in result["per_object"].items()]
-    rows.append(f"{'ALL':<12} {result['success_rate']:>8.1%}  ({result['episodes']} episodes, "
-                f"{result['policy']}, sensor {result['sensor']})")
+    lo, hi = result["ci95"]
+    rows.append(f"{'ALL':<12} {result['success_rate']:>8.1%}  (95 % CI {lo:.1%}-{hi:.1%}; "
+                f"{result['episodes']} episodes, {result['policy']}, sensor {result['sensor']}, "
+                f"restore {result['restore']})")
     return "\n".join(rows)
 
 
@@ -84,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         make_sensor(args.sensor)
         kinds = object_list(args.objects)
         result = evaluate(args.policy, kinds, args.episodes, seed=args.seed, workers=args.workers,
-                          sensor=args.sensor, randomise=not args.no_randomise)
+                          sensor=args.sensor, restore=args.restore, randomise=not args.no_randomise)
         if args.json:
             args.json.parent.mkdir(parents=True, exist_ok=True)
             args.json.write_text(json.dumps(result, indent=2))

@@ -1,7 +1,15 @@
 import numpy as np
 import pytest
 
-from runtime.preprocess import DepthSpec, FrameStack, PreprocessError, crop_resize, normalise, preprocess
+from runtime.preprocess import (
+    DepthSpec,
+    FrameStack,
+    PreprocessError,
+    crop_resize,
+    normalise,
+    preprocess,
+    restore_holes,
+)
 
 SPEC = DepthSpec()
 
@@ -17,6 +25,36 @@ def test_two_step_path_equals_one_step_bit_exact():
     raw = _frame()
     two_step = normalise(crop_resize(raw, SPEC), 0.001, SPEC)
     np.testing.assert_array_equal(preprocess(raw, 0.001, SPEC), two_step)
+
+
+def test_restored_path_equals_the_steps_and_the_trainers_inpaint_source():
+    from trainer.ddg.baselines import inpaint  # what Table I and `--sensor inpaint` apply
+
+    raw = _frame()
+    small = crop_resize(raw, SPEC)
+    trainer_side = normalise(inpaint(small, np.random.default_rng(0)), 0.001, SPEC)
+    np.testing.assert_array_equal(preprocess(raw, 0.001, SPEC, restore="inpaint"), trainer_side)
+    np.testing.assert_array_equal(preprocess(raw, 0.001, SPEC, restore="none"), preprocess(raw, 0.001, SPEC))
+
+
+def test_inpaint_fills_holes_from_their_surroundings_and_keeps_measured_pixels():
+    depth = np.full((96, 128), 800, np.uint16)
+    depth[:, 64:] = 1200
+    depth[40:50, 20:30] = 0  # inside the 800 mm half
+    depth[40:50, 95:105] = 0  # inside the 1200 mm half
+    out = restore_holes(depth, "inpaint")
+    assert out.dtype == np.uint16 and not (out == 0).any()
+    np.testing.assert_array_equal(out[depth > 0], depth[depth > 0])
+    assert set(np.unique(out[40:50, 20:30])) == {800} and set(np.unique(out[40:50, 95:105])) == {1200}
+
+
+def test_restore_leaves_hole_free_and_all_hole_frames_and_names_unknown_methods():
+    full = np.full((4, 5), 900, np.uint16)
+    empty = np.zeros((4, 5), np.uint16)
+    np.testing.assert_array_equal(restore_holes(full, "inpaint"), full)
+    np.testing.assert_array_equal(restore_holes(empty, "inpaint"), empty)
+    with pytest.raises(PreprocessError, match="unknown hole restoration 'median'"):
+        restore_holes(full, "median")
 
 
 def test_shape_dtype_and_range():

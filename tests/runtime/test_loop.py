@@ -160,3 +160,29 @@ def test_stop_ends_with_a_hold_command():
 def test_bad_loop_config_is_named(field, value):
     with pytest.raises(ValueError, match=field):
         LoopConfig(**{field: value})
+
+
+class _RecordingPolicy(FakePolicy):
+    def __call__(self, depth, state):
+        self.seen = depth
+        return super().__call__(depth, state)
+
+
+def _holey_camera(clock):
+    camera = FakeCamera(clock, P)
+    camera.depth[200:280, 380:470] = 0  # a hole in the middle of the deploy crop
+    return camera
+
+
+@pytest.mark.parametrize("restore,holes_reach_policy", [("none", True), ("inpaint", False)])
+def test_restore_option_decides_whether_holes_reach_the_policy(restore, holes_reach_policy):
+    code, *_, policy = _run(camera=_holey_camera, policy=_RecordingPolicy, seconds=0.5, restore=restore)
+    assert code == EXIT_OK
+    invalid = policy.seen == policy.metadata.preprocess.invalid_value
+    assert invalid.any() == holes_reach_policy
+    assert np.allclose(policy.seen[~invalid], policy.seen[~invalid].flat[0])  # filled with the 900 mm around
+
+
+def test_unknown_restore_is_a_config_error():
+    with pytest.raises(ValueError, match="restore must be one of"):
+        LoopConfig(restore="median")

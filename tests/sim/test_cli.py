@@ -16,6 +16,7 @@ import pytest
 from trainer.collect import main as collect_main
 from trainer.dataset import DemoStore
 from trainer.evaluate import main as evaluate_main
+from trainer.evaluate import wilson_interval
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -52,7 +53,17 @@ def test_evaluate_writes_the_json_contract(tmp_path, capsys) -> None:
     assert result["episodes"] == 2 and set(result["per_object"]) == {"cube", "peach"}
     assert 0.0 <= result["success_rate"] <= 1.0
     assert result["success_rate"] == pytest.approx(np.mean(list(result["per_object"].values())))
+    lo, hi = result["ci95"]
+    assert 0.0 <= lo <= result["success_rate"] <= hi <= 1.0 and hi - lo > 0.3  # 2 episodes say little
     assert "ALL" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("successes,n", [(0, 10), (5, 10), (10, 10), (1, 30), (81, 263)])
+def test_wilson_interval_matches_scipy(successes, n) -> None:
+    from scipy.stats import binomtest
+
+    expected = binomtest(successes, n).proportion_ci(method="wilson")
+    np.testing.assert_allclose(wilson_interval(successes, n), (expected.low, expected.high), atol=1e-4)
 
 
 @pytest.mark.parametrize("argv,needle", [(["--objects", "dragonfruit"], "unknown object kind 'dragonfruit'"),

@@ -44,6 +44,18 @@ def test_the_evaluator_shows_the_policy_stereo_depth_through_the_runtime_crop():
     assert ((seen == 0) & (clean > 0)).any(), "stereo holes never reached the policy"
 
 
+def test_the_evaluators_inpaint_restoration_fills_the_stereo_holes_the_policy_would_see():
+    env = GraspEnv(EnvConfig(objects=("cube",), max_steps=2))
+    sensor = make_sensor("stereo")
+    policy = _Recorder()
+    try:
+        run_episode(env, policy, Job(seed=7, kind="cube"), sensor=sensor, restore="inpaint")
+    finally:
+        sensor.close()
+        env.close()
+    assert policy.seen[-1].shape == (96, 128) and not (policy.seen[-1] == 0).any()
+
+
 def test_clean_sensor_is_still_a_plain_function():
     sensor = make_sensor("clean")
     frame = np.arange(12, dtype=np.uint16).reshape(3, 4)

@@ -6,8 +6,7 @@ numpy Generator -> uint16 mm depth [H, W] (0 = hole).
 - ``randnoise``: procedural noise in the style of DextrAH-G's depth augmentation: depth-dependent Gaussian
   noise, random pixel dropout, holes along depth edges and a few random blobs.
 - ``inpaint``: OpenCV Navier-Stokes inpainting of the holes (DexGraspNet 2.0's deploy-time restoration
-  baseline;
-  applied to real depth).
+  baseline, the runtime's ``--restore inpaint``; applied to real depth).
 - ``ddg_nograft`` / ``ddg``: the Diffusion Depth Generator without / with Noise Grafting (needs a model).
 """
 
@@ -19,6 +18,8 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
+from runtime.preprocess import restore_holes
 
 DepthSource = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 
@@ -66,10 +67,7 @@ def randnoise(depth_mm: np.ndarray, rng: np.random.Generator, cfg: RandNoiseConf
 
 
 def inpaint(depth_mm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    holes = (depth_mm == 0).astype(np.uint8)
-    if not holes.any():
-        return depth_mm.copy()
-    return cv2.inpaint(depth_mm, holes, 3, cv2.INPAINT_NS)
+    return restore_holes(depth_mm, "inpaint").copy()
 
 
 class DDGSource:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.preprocess import crop_resize
+from runtime.preprocess import crop_resize, restore_holes
 from trainer.policies import Observation, make_policy
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.sensors import SceneSensor, Sensor, make_sensor
@@ -38,8 +38,9 @@ class Rollout:
 
 
 def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor: Sensor | None = None,
-                ) -> Rollout:
-    """Reset to ``job``, act until the episode ends; the sensor maps clean depth to what the policy sees."""
+                restore: str = "none") -> Rollout:
+    """Reset to ``job``, act until the episode ends; the sensor maps clean depth to what the policy sees,
+    after the runtime's hole restoration ``restore``."""
     _, info = env.reset(seed=job.seed, options={"kind": job.kind})
     if isinstance(sensor, SceneSensor):
         sensor.reset(env.world, job.seed)
@@ -52,6 +53,7 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
     while True:
         depth = info.get("depth")
         seen = _observe(sensor, env, depth)
+        seen = seen if seen is None else restore_holes(seen, restore)
         action = np.asarray(policy.act(Observation(obs, seen, info["state"])), np.float32)
         if record:
             for key, value in (("depth", depth), ("state", info["state"]), ("action", action),
@@ -78,27 +80,28 @@ def _observe(sensor: Sensor | None, env: GraspEnv, depth: np.ndarray | None) -> 
 _WORKER: dict = {}
 
 
-def _init(config: EnvConfig, policy_spec: str, record: bool, sensor_spec: str) -> None:
+def _init(config: EnvConfig, policy_spec: str, record: bool, sensor_spec: str, restore: str) -> None:
     _WORKER.update(env=GraspEnv(config), policy=make_policy(policy_spec), record=record,
-                   sensor=make_sensor(sensor_spec))
+                   sensor=make_sensor(sensor_spec), restore=restore)
 
 
 def _work(job: Job) -> Rollout:
     return run_episode(_WORKER["env"], _WORKER["policy"], job, record=_WORKER["record"],
-                       sensor=_WORKER["sensor"])
+                       sensor=_WORKER["sensor"], restore=_WORKER["restore"])
 
 
 def rollouts(config: EnvConfig, policy_spec: str, jobs: Iterable[Job], *, workers: int = 1,
-             record: bool = False, sensor_spec: str = "clean") -> Iterator[Rollout]:
+             record: bool = False, sensor_spec: str = "clean", restore: str = "none") -> Iterator[Rollout]:
     """Run ``jobs`` in order; ``workers`` > 1 uses that many processes, each building its own env,
     policy and sensor from the specs."""
     if workers <= 1:
-        _init(config, policy_spec, record, sensor_spec)
+        _init(config, policy_spec, record, sensor_spec, restore)
         try:
             yield from map(_work, jobs)
         finally:
             _WORKER.pop("env").close()
         return
     ctx = mp.get_context("spawn")
-    with ctx.Pool(workers, initializer=_init, initargs=(config, policy_spec, record, sensor_spec)) as pool:
+    initargs = (config, policy_spec, record, sensor_spec, restore)
+    with ctx.Pool(workers, initializer=_init, initargs=initargs) as pool:
         yield from pool.imap(_work, jobs)
