@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
@@ -27,11 +28,16 @@ class PolicyError(ValueError):
 class Observation:
     privileged: np.ndarray
     """float32 [40], layout in ``trainer.sim.env``."""
-    depth: np.ndarray | None
-    """uint16 [96, 128] mm at the policy resolution (0 = no data), after the sensor model; None when the
-    env does not render depth."""
+    depth_frame: np.ndarray | Callable[[], np.ndarray | None] | None
+    """The depth frame, or a function that makes it on first use of ``depth``: sensor models are costly and
+    a student reads only the frames its next inference stacks. None when the env does not render depth."""
     state: np.ndarray
     """float32 [8]: 7 joint angles (rad) + gripper opening (m)."""
+
+    @cached_property
+    def depth(self) -> np.ndarray | None:
+        """uint16 [96, 128] mm at the policy resolution (0 = no data), after the sensor model."""
+        return self.depth_frame() if callable(self.depth_frame) else self.depth_frame
 
 
 class Policy(Protocol):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from runtime.preprocess import normalise
 from trainer.policies import Observation, make_policy
 from trainer.student.onnx_policy import to_env_actions
 
@@ -11,7 +12,7 @@ from trainer.student.onnx_policy import to_env_actions
 def observation(rng: np.random.Generator) -> Observation:
     depth = rng.integers(300, 1500, (96, 128)).astype(np.uint16)
     depth[:10] = 0
-    return Observation(privileged=np.zeros(40, np.float32), depth=depth, state=np.zeros(8, np.float32))
+    return Observation(privileged=np.zeros(40, np.float32), depth_frame=depth, state=np.zeros(8, np.float32))
 
 
 def test_student_spec_acts_in_env_units_and_replans_every_exec_horizon(untrained_student_onnx):
@@ -35,3 +36,23 @@ def test_to_env_actions_undoes_the_action_scale():
     env = to_env_actions(chunk, 0.05)
     np.testing.assert_allclose(env[0, :7], [1.0, -0.5, 0, 0, 0, 0, 1.0])
     assert env[:, 7].tolist() == [1.0, -1.0]
+
+
+def test_only_the_frames_an_inference_stacks_are_made_and_the_inputs_are_unchanged(untrained_student_onnx):
+    """Sensor models are costly: a lazy frame is made only when it will be in the next inference's stack,
+    and the stacks equal those of a policy that read every frame."""
+    policy = make_policy(f"student:{untrained_student_onnx}")
+    policy.reset({})
+    stacks, made = [], []
+    inner = policy.runtime.__call__
+    policy.runtime = lambda depth, state: stacks.append(depth.copy()) or inner(depth, state)
+    frames = [observation(np.random.default_rng(i)).depth for i in range(20)]
+    for step, frame in enumerate(frames):
+        policy.act(Observation(np.zeros(40, np.float32), lambda s=step, f=frame: made.append(s) or f,
+                               np.zeros(8, np.float32)))
+    horizon, execute = policy.meta.obs_horizon, policy.meta.exec_horizon
+    assert made == [s for s in range(20) if s % execute == 0 or execute - s % execute < horizon]
+    for k, stack in enumerate(stacks):
+        t = k * execute
+        expected = [frames[max(0, t - j)] for j in range(horizon - 1, -1, -1)]
+        np.testing.assert_array_equal(stack, [normalise(d, 0.001, policy.meta.preprocess) for d in expected])

@@ -9,6 +9,7 @@ from __future__ import annotations
 import multiprocessing as mp
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
@@ -52,8 +53,7 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
     obs = env.observation()
     while True:
         depth = info.get("depth")
-        seen = _observe(sensor, env, depth)
-        seen = seen if seen is None else restore_holes(seen, restore)
+        seen = partial(_observe, sensor, env, depth, restore)
         action = np.asarray(policy.act(Observation(obs, seen, info["state"])), np.float32)
         if record:
             for key, value in (("depth", depth), ("state", info["state"]), ("action", action),
@@ -67,14 +67,17 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
             return rollout
 
 
-def _observe(sensor: Sensor | None, env: GraspEnv, depth: np.ndarray | None) -> np.ndarray | None:
+def _observe(sensor: Sensor | None, env: GraspEnv, depth: np.ndarray | None, restore: str
+             ) -> np.ndarray | None:
     """What the policy sees: clean depth through the sensor, or a scene sensor's stream cropped to the
-    episode's window as the runtime crops a camera frame."""
-    if sensor is None or depth is None:
-        return depth
+    episode's window as the runtime crops a camera frame; then the runtime's hole restoration."""
+    if depth is None:
+        return None
     if isinstance(sensor, SceneSensor):
-        return crop_resize(sensor.stream(env.world), env.spec, env.world.episode.crop_window)
-    return sensor(depth)
+        seen = crop_resize(sensor.stream(env.world), env.spec, env.world.episode.crop_window)
+    else:
+        seen = depth if sensor is None else sensor(depth)
+    return restore_holes(seen, restore)
 
 
 _WORKER: dict = {}

@@ -3,7 +3,8 @@
 
 The graph returns a chunk in robot units; the simulated env takes env actions, so the 7 joint deltas are
 divided by the action scale again and the gripper value is thresholded at 0 to -1/+1. The first
-``exec_horizon`` actions of each chunk are executed before the policy is asked again (receding horizon).
+``exec_horizon`` actions of each chunk are executed before the policy is asked again (receding horizon); only
+the last ``obs_horizon`` frames before each inference are read (the others would leave the stack unused).
 """
 
 from __future__ import annotations
@@ -31,10 +32,11 @@ class StudentOnnxPolicy:
         self.queue.clear()
 
     def act(self, obs: Observation) -> np.ndarray:
-        if obs.depth is None:
-            raise ValueError("student policy needs depth observations (the env was created without depth)")
-        stack = self.frames.push(normalise(obs.depth, DEPTH_SCALE, self.meta.preprocess))
-        if not self.queue:
+        if len(self.queue) < self.meta.obs_horizon:  # older frames leave the stack before the next inference
+            if obs.depth is None:
+                raise ValueError("student policy needs depth observations (the env renders no depth)")
+            stack = self.frames.push(normalise(obs.depth, DEPTH_SCALE, self.meta.preprocess))
+        if not self.queue:  # (so the push above ran this step)
             chunk = self.runtime(stack, obs.state)
             self.queue.extend(to_env_actions(chunk[: self.meta.exec_horizon], self.meta.action_scale))
         return self.queue.popleft()
