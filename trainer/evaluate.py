@@ -22,7 +22,7 @@ from runtime.preprocess import RESTORE_METHODS
 from trainer.policies import NEEDS_DEPTH, PolicyError, parse
 from trainer.sim.env import EnvConfig
 from trainer.sim.rollout import Job, rollouts
-from trainer.sim.sensors import SensorError, make_sensor
+from trainer.sim.sensors import SensorError, make_sensor, reads_clean_depth
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -68,7 +68,8 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
 def evaluate(policy: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 10_000, workers: int = 1,
              sensor: str = "clean", restore: str = "none", randomise: bool = True) -> dict:
     kind, _ = parse(policy)
-    config = EnvConfig(objects=kinds, randomise=randomise, render_depth=NEEDS_DEPTH[kind])
+    config = EnvConfig(objects=kinds, randomise=randomise,
+                       render_depth=NEEDS_DEPTH[kind] and reads_clean_depth(sensor))
     jobs = [Job(seed + i, kinds[i % len(kinds)]) for i in range(episodes)]
     per: dict[str, list[bool]] = {k: [] for k in kinds}
     steps, start = [], time.perf_counter()

@@ -9,7 +9,7 @@ from hil_sim.server import SimConfig, _depth_source
 from trainer.policies import Observation
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, run_episode
-from trainer.sim.sensors import SceneSensor, make_sensor
+from trainer.sim.sensors import SceneSensor, make_sensor, reads_clean_depth
 
 
 class _Recorder:
@@ -45,7 +45,8 @@ def test_the_evaluator_shows_the_policy_stereo_depth_through_the_runtime_crop():
 
 
 def test_the_evaluators_inpaint_restoration_fills_the_stereo_holes_the_policy_would_see():
-    env = GraspEnv(EnvConfig(objects=("cube",), max_steps=2))
+    assert not reads_clean_depth("stereo") and reads_clean_depth("ddg:steps=2") and reads_clean_depth("clean")
+    env = GraspEnv(EnvConfig(objects=("cube",), max_steps=2, render_depth=False))  # as evaluate builds it
     sensor = make_sensor("stereo")
     policy = _Recorder()
     try:

@@ -71,10 +71,10 @@ def _observe(sensor: Sensor | None, env: GraspEnv, depth: np.ndarray | None, res
              ) -> np.ndarray | None:
     """What the policy sees: clean depth through the sensor, or a scene sensor's stream cropped to the
     episode's window as the runtime crops a camera frame; then the runtime's hole restoration."""
-    if depth is None:
-        return None
     if isinstance(sensor, SceneSensor):
         seen = crop_resize(sensor.stream(env.world), env.spec, env.world.episode.crop_window)
+    elif depth is None:
+        return None
     else:
         seen = depth if sensor is None else sensor(depth)
     return restore_holes(seen, restore)

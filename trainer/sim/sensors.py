@@ -48,12 +48,19 @@ def stereo(arg: str) -> SceneSensor:
 
 
 SENSORS: dict[str, Factory] = {"clean": lambda _arg: clean, "stereo": stereo}
+SCENE_SENSORS = frozenset({"stereo"})
+"""Registered names whose sensor is a ``SceneSensor``: the env need not render clean depth for them."""
 PLUGINS: tuple[str, ...] = ("trainer.ddg.baselines",)
 """Modules that call ``register`` when imported (the DDG and noise baselines add theirs here)."""
 
 
 def register(name: str, factory: Factory) -> None:
     SENSORS[name] = factory
+
+
+def reads_clean_depth(spec: str) -> bool:
+    """Whether the sensor ``spec`` maps the env's clean depth (False for a registered scene sensor)."""
+    return spec.partition(":")[0] not in SCENE_SENSORS
 
 
 def make_sensor(spec: str) -> Sensor:
