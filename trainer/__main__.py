@@ -11,6 +11,7 @@ COMMANDS = {
     "teacher": ("trainer.teacher.cli", "train the PPO teacher on privileged state"),
     "ddg": ("trainer.ddg.cli", "Diffusion Depth Generator: fit | generate | metrics"),
     "student": ("trainer.student.cli", "diffusion-policy student: fit"),
+    "table": ("trainer.table", "many evaluate results as one comparison table (success, 95 % CI)"),
 }
 
 

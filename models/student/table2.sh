@@ -1,0 +1,58 @@
+#!/usr/bin/env bash
+# The paper's Table II analogue (issue 7): students trained on four depth sources with one budget, each run
+# under the exact (clean) and the active-stereo (stereo) sensor on seen and unseen kinds.
+#   models/student/table2.sh train      the students (after train.sh steps 1-3: demos, GT student, DDG depth)
+#   models/student/table2.sh evaluate   every cell -> runs/table2/*.json (skips cells already written)
+#   models/student/table2.sh table      docs/table2.json + the markdown table of the README
+# Budget: the GT student of train.sh step 2, fine-tuned 8000 steps at lr 1e-4 on each source's depth of the
+# same 1000 demos (seed 0); `gt` is that GT student itself. Evaluation seeds 10000.. for every cell.
+set -euo pipefail
+export OMP_NUM_THREADS=1
+CLEAN_EPISODES=${CLEAN_EPISODES:-100}
+STEREO_EPISODES=${STEREO_EPISODES:-36}
+
+train() {
+    # ddg: train.sh step 4's first stage kept in its own folder (it ran on 2 threads; the others on 1)
+    for run in "ddg ddg2_ft_8k 2" "randnoise randnoise_ft_8k 1" "ddg_nograft ddg_nograft_ft_8k 1"; do
+        set -- $run
+        out=runs/student/$2
+        python -m trainer student fit --demos runs/sim/demos_seen.zarr --depth-source "$1" --out "$out" \
+            --init runs/student/gt_1000_obj1/ckpt.pt --object-loss 1 --steps 8000 --batch 32 --lr 1e-4 \
+            --warmup 200 --width 16 --head-dims 32 64 128 --threads "$3" --ckpt-every 1000
+        python -m export "$out/ckpt.pt" --ddim-steps 4 --out "$out.onnx"
+    done
+}
+
+# name policy-file restore
+STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
+          "gt_inpaint runs/student/gt_1000_obj1.onnx inpaint"
+          "ddg runs/student/ddg2_ft_8k.onnx none"
+          "randnoise runs/student/randnoise_ft_8k.onnx none"
+          "ddg_nograft runs/student/ddg_nograft_ft_8k.onnx none")
+
+cell() {  # name model restore sensor objects episodes
+    local json=runs/table2/$1_$4_$5_$6.json
+    [ -f "$json" ] && return 0
+    [ -f "$2" ] || { echo "skipped $json: $2 not trained yet"; return 0; }
+    python -m trainer evaluate --policy "student:$2" --restore "$3" --sensor "$4" --objects "$5" \
+        --episodes "$6" --workers 2 --json "$json" > "${json%.json}.log" 2>&1
+}
+
+evaluate() {
+    mkdir -p runs/table2
+    for sensor in clean stereo; do
+        episodes=$([ "$sensor" = clean ] && echo "$CLEAN_EPISODES" || echo "$STEREO_EPISODES")
+        for objects in seen unseen; do
+            for student in "${STUDENTS[@]}"; do
+                set -- $student
+                cell "$1" "$2" "$3" "$sensor" "$objects" "$episodes"
+            done
+        done
+    done
+}
+
+table() {
+    python -m trainer table runs/table2/*.json --out docs/table2.json
+}
+
+"${1:?usage: table2.sh train|evaluate|table}"

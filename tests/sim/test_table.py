@@ -1,0 +1,37 @@
+"""``trainer table``: evaluate results -> one table, one cell per policy x sensor x object group."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from hil_sim.objects import GROUPS
+from trainer.table import TableError, build, main, markdown
+
+
+def _result(tmp_path, name, *, sensor="clean", objects="seen", rate=0.5, restore="none"):
+    path = tmp_path / f"{name}.json"
+    path.write_text(json.dumps({"success_rate": rate, "episodes": 10, "policy": "student:runs/a.onnx",
+                                "sensor": sensor, "objects": list(GROUPS[objects]), "restore": restore}))
+    return path
+
+
+def test_cells_land_in_their_row_and_column_with_a_wilson_interval(tmp_path):
+    doc = build([_result(tmp_path, "a", rate=0.5),
+                 _result(tmp_path, "b", sensor="stereo", objects="unseen", rate=0.0),
+                 _result(tmp_path, "c", restore="inpaint", rate=1.0)])
+    assert doc["columns"] == ["clean seen", "stereo unseen"]
+    assert set(doc["rows"]) == {"a", "a + inpaint"}
+    assert doc["rows"]["a"]["stereo unseen"]["successes"] == 0
+    assert doc["rows"]["a"]["clean seen"]["ci95"] == pytest.approx([0.2366, 0.7634], abs=1e-4)
+    assert "| a + inpaint | 100.0% [72%, 100%] n=10 | - |" in markdown(doc)
+
+
+def test_two_results_for_one_cell_and_foreign_json_are_named(tmp_path, capsys):
+    with pytest.raises(TableError, match="two results for a / clean seen"):
+        build([_result(tmp_path, "x"), _result(tmp_path, "y")])
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps({"hello": 1}))
+    assert main([str(bad)]) == 2
+    assert "bad.json: not a trainer evaluate result" in capsys.readouterr().err

@@ -1,0 +1,88 @@
+"""``python -m trainer table RESULT.json ...``: many ``trainer evaluate`` results as one comparison table.
+
+Rows are policies (the policy file's stem, "+ inpaint" when the runtime restored holes), columns are
+sensor x object group; a cell is the success rate with its 95 % Wilson interval and episode count.
+Prints markdown; ``--out`` also writes the table as JSON with every cell's source file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from hil_sim.objects import GROUPS
+from trainer.evaluate import wilson_interval
+
+
+class TableError(ValueError):
+    """A result file that is not a ``trainer evaluate`` JSON, or two results for one cell."""
+
+
+def load(path: Path) -> dict:
+    try:
+        result = json.loads(path.read_text())
+        successes = round(result["success_rate"] * result["episodes"])
+        row = Path(result["policy"].partition(":")[2] or result["policy"]).stem
+        restore = result.get("restore", "none")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise TableError(f"{path}: not a trainer evaluate result ({exc})") from None
+    objects = next((name for name, kinds in GROUPS.items() if list(kinds) == result["objects"]),
+                   ",".join(result["objects"]))
+    n = result["episodes"]
+    return {"row": row + ("" if restore == "none" else f" + {restore}"),
+            "column": f"{result['sensor']} {objects}", "success_rate": result["success_rate"],
+            "successes": successes, "episodes": n,
+            "ci95": [round(b, 4) for b in wilson_interval(successes, n)], "source": str(path)}
+
+
+def build(paths: list[Path]) -> dict:
+    cells = [load(p) for p in paths]
+    rows = list(dict.fromkeys(c["row"] for c in cells))
+    columns = sorted(dict.fromkeys(c["column"] for c in cells), key=lambda c: (c.split()[0] != "clean", c))
+    table: dict[str, dict[str, dict]] = {r: {} for r in rows}
+    for c in cells:
+        if c["column"] in table[c["row"]]:
+            raise TableError(f"two results for {c['row']} / {c['column']}: "
+                             f"{table[c['row']][c['column']]['source']} and {c['source']}")
+        table[c["row"]][c["column"]] = {k: c[k] for k in ("success_rate", "successes", "episodes", "ci95",
+                                                          "source")}
+    return {"columns": columns, "rows": table}
+
+
+def markdown(doc: dict) -> str:
+    columns = doc["columns"]
+    lines = ["| policy | " + " | ".join(columns) + " |", "|---" * (len(columns) + 1) + "|"]
+    for row, cells in doc["rows"].items():
+        lines.append(f"| {row} | " + " | ".join(_cell(cells.get(c)) for c in columns) + " |")
+    return "\n".join(lines)
+
+
+def _cell(cell: dict | None) -> str:
+    if cell is None:
+        return "-"
+    lo, hi = cell["ci95"]
+    return f"{cell['success_rate']:.1%} [{lo:.0%}, {hi:.0%}] n={cell['episodes']}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m trainer table", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("results", nargs="+", type=Path, help="JSON files written by trainer evaluate --json")
+    p.add_argument("--out", type=Path, help="also write the table as JSON here")
+    args = p.parse_args(argv)
+    try:
+        doc = build(args.results)
+    except TableError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(doc, indent=2) + "\n")
+    print(markdown(doc))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
