@@ -9,7 +9,7 @@
 set -euo pipefail
 export OMP_NUM_THREADS=1
 CLEAN_EPISODES=${CLEAN_EPISODES:-100}
-STEREO_EPISODES=${STEREO_EPISODES:-36}
+STEREO_EPISODES=${STEREO_EPISODES:-90}
 
 train() {
     # ddg: train.sh step 4's first stage kept in its own folder (it ran on 2 threads; the others on 1)
