@@ -28,7 +28,8 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "gt_inpaint runs/student/gt_1000_obj1.onnx inpaint"
           "ddg runs/student/ddg2_ft_8k.onnx none"
           "randnoise runs/student/randnoise_ft_8k.onnx none"
-          "ddg_nograft runs/student/ddg_nograft_ft_8k.onnx none")
+          "ddg_nograft runs/student/ddg_nograft_ft_8k.onnx none"
+          "shipped runs/student/ddg2_ft_20k.onnx none")  # models/student.onnx: the ddg student at 20000 steps
 
 cell() {  # name model restore sensor objects episodes
     local json=runs/table2/$1_$4_$5_$6.json

@@ -53,7 +53,7 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
     obs = env.observation()
     while True:
         depth = info.get("depth")
-        seen = partial(_observe, sensor, env, depth, restore)
+        seen = partial(observe, sensor, env, depth, restore)
         action = np.asarray(policy.act(Observation(obs, seen, info["state"])), np.float32)
         if record:
             for key, value in (("depth", depth), ("state", info["state"]), ("action", action),
@@ -67,7 +67,7 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
             return rollout
 
 
-def _observe(sensor: Sensor | None, env: GraspEnv, depth: np.ndarray | None, restore: str
+def observe(sensor: Sensor | None, env: GraspEnv, depth: np.ndarray | None, restore: str
              ) -> np.ndarray | None:
     """What the policy sees: clean depth through the sensor, or a scene sensor's stream cropped to the
     episode's window as the runtime crops a camera frame; then the runtime's hole restoration."""
