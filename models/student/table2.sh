@@ -52,8 +52,13 @@ evaluate() {
     done
 }
 
-table() {
-    python -m trainer table runs/table2/*.json --out docs/table2.json
+table() {  # rows in the order of STUDENTS
+    local files=()
+    for student in "${STUDENTS[@]}"; do
+        set -- $student
+        files+=(runs/table2/"$1"_{clean,stereo}_*.json)
+    done
+    python -m trainer table "${files[@]}" --out docs/table2.json
 }
 
 "${1:?usage: table2.sh train|evaluate|table}"
