@@ -4,6 +4,7 @@
 #   models/student/table2.sh train      the students (after train.sh steps 1-3: demos, GT student, DDG depth)
 #   models/student/table2.sh evaluate   every cell -> runs/table2/*.json (skips cells already written)
 #   models/student/table2.sh table      docs/table2.json + the markdown table of the README
+#   models/student/table2.sh key        the gt and shipped rows under stereo at 180 episodes (30 per kind)
 # Budget: the GT student of train.sh step 2, fine-tuned 8000 steps at lr 1e-4 on each source's depth of the
 # same 1000 demos (seed 0); `gt` is that GT student itself. Evaluation seeds 10000.. for every cell.
 set -euo pipefail
@@ -52,6 +53,18 @@ evaluate() {
     done
 }
 
+key() {
+    mkdir -p runs/table2/key
+    for objects in seen unseen; do
+        for student in "${STUDENTS[0]}" "${STUDENTS[5]}"; do
+            set -- $student
+            local json=runs/table2/key/$1_stereo_${objects}_180.json
+            [ -f "$json" ] || python -m trainer evaluate --policy "student:$2" --restore "$3" --sensor stereo \
+                --objects "$objects" --episodes 180 --workers 2 --json "$json" > "${json%.json}.log" 2>&1
+        done
+    done
+}
+
 table() {  # rows in the order of STUDENTS
     local files=()
     for student in "${STUDENTS[@]}"; do
@@ -61,4 +74,4 @@ table() {  # rows in the order of STUDENTS
     python -m trainer table "${files[@]}" --out docs/table2.json
 }
 
-"${1:?usage: table2.sh train|evaluate|table}"
+"${1:?usage: table2.sh train|evaluate|table|key}"
