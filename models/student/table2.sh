@@ -32,8 +32,8 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "ddg_nograft runs/student/ddg_nograft_ft_8k.onnx none"
           "shipped runs/student/ddg2_ft_20k.onnx none")  # models/student.onnx: the ddg student at 20000 steps
 
-cell() {  # name model restore sensor objects episodes
-    local json=runs/table2/$1_$4_$5_$6.json
+cell() {  # name model restore sensor objects episodes [folder]
+    local json=${7:-runs/table2}/$1_$4_$5_$6.json
     [ -f "$json" ] && return 0
     [ -f "$2" ] || { echo "skipped $json: $2 not trained yet"; return 0; }
     python -m trainer evaluate --policy "student:$2" --restore "$3" --sensor "$4" --objects "$5" \
@@ -58,9 +58,7 @@ key() {
     for objects in seen unseen; do
         for student in "${STUDENTS[0]}" "${STUDENTS[5]}"; do
             set -- $student
-            local json=runs/table2/key/$1_stereo_${objects}_180.json
-            [ -f "$json" ] || python -m trainer evaluate --policy "student:$2" --restore "$3" --sensor stereo \
-                --objects "$objects" --episodes 180 --workers 2 --json "$json" > "${json%.json}.log" 2>&1
+            cell "$1" "$2" "$3" stereo "$objects" 180 runs/table2/key
         done
     done
 }
