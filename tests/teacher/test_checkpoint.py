@@ -13,6 +13,7 @@ from trainer.policies import Observation, make_policy
 from trainer.sim.env import GraspEnv
 from trainer.teacher.cli import main
 from trainer.teacher.normaliser import ObsNormaliser
+from trainer.teacher.observation import TEACHER_OBS_DIM, teacher_observation
 from trainer.teacher.ppo import TeacherConfig, TeacherError, load
 from trainer.teacher.progress import read_curve
 
@@ -32,7 +33,7 @@ def test_reload_reproduces_actions(tiny_teacher):
     teacher = make_policy(f"ppo:{tiny_teacher}")
     again = load(tiny_teacher / "model.zip")
     for obs in _observations(3):
-        expected, _ = model.predict(normaliser(obs), deterministic=True)
+        expected, _ = model.predict(normaliser(teacher_observation(obs)), deterministic=True)
         got = teacher.act(Observation(obs, None, np.zeros(8, np.float32)))
         assert got.shape == (8,) and got.dtype == np.float32
         np.testing.assert_array_equal(got, expected)
@@ -67,6 +68,14 @@ def test_missing_checkpoint_is_a_clear_error(tmp_path):
     assert main(["fit", "--out", str(tmp_path), "--resume", "--steps", "8", *TINY]) == 2
 
 
+def test_checkpoint_of_another_observation_is_a_clear_error(tmp_path):
+    env = GraspEnv(TeacherConfig(objects=("cube",)).env_config())  # the raw 40-d env, no yaw features
+    PPO("MlpPolicy", env, n_steps=8, batch_size=8, device="cpu").save(tmp_path / "model.zip")
+    env.close()
+    with pytest.raises(TeacherError, match="retrain"):
+        load(tmp_path)
+
+
 def test_config_validation_names_the_bad_value():
     with pytest.raises(TeacherError, match="'threads'"):
         TeacherConfig(vec="threads")
@@ -79,6 +88,6 @@ def test_shipped_checkpoint_acts():
 
     shipped = Path(__file__).resolve().parents[2] / "models" / "teacher"
     teacher = make_policy(f"ppo:{shipped}")
-    assert teacher.normaliser.mean.shape == (40,)
+    assert teacher.normaliser.mean.shape == (TEACHER_OBS_DIM,)
     action = teacher.act(_observations(1)[0])
     assert action.shape == (8,) and np.all(np.isfinite(action)) and np.all(np.abs(action) <= 1.0)

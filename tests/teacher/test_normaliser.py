@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from trainer.policies import Observation, make_policy
+from trainer.sim.env import OBS_DIM
 from trainer.teacher.normaliser import ARM_VELOCITIES, NormaliserError, ObsNormaliser
+from trainer.teacher.observation import TEACHER_OBS_DIM
 from trainer.teacher.ppo import TeacherConfig, make_vec_env, new_model, save
 
 
@@ -28,7 +30,8 @@ def test_training_wrapper_and_saved_statistics_normalise_identically(tmp_path):
     teacher = make_policy(f"ppo:{tmp_path}")  # the collect/evaluate path
     np.testing.assert_array_equal(teacher.normaliser(raw[0]), normalised[0])
     expected, _ = model.predict(normalised[0], deterministic=True)
-    np.testing.assert_array_equal(teacher.act(Observation(raw[0], None, np.zeros(8, np.float32))), expected)
+    acted = teacher.act(Observation(raw[0, :OBS_DIM], None, np.zeros(8, np.float32)))
+    np.testing.assert_array_equal(acted, expected)
 
 
 def test_install_rejects_statistics_of_another_width():
@@ -63,4 +66,4 @@ def test_arm_velocities_are_masked_in_training_and_at_use(tmp_path):
         venv.close()
     loaded = ObsNormaliser.load(tmp_path / "n.npz")
     assert loaded.masked == ARM_VELOCITIES == saved.masked
-    assert np.all(loaded(np.full(40, 5.0, np.float32))[list(ARM_VELOCITIES)] == 0.0)
+    assert np.all(loaded(np.full(TEACHER_OBS_DIM, 5.0, np.float32))[list(ARM_VELOCITIES)] == 0.0)

@@ -118,7 +118,8 @@ def _smoothness(args: argparse.Namespace) -> int:
     results = [measure(spec, kinds, args.episodes, seed=args.seed, workers=args.workers)
                for spec in args.policy]
     for r in results:
-        print(f"{r['policy']:<40} success {r['success_rate']:6.1%}  mean sq joint accel "
+        lo, hi = r["ci95"]
+        print(f"{r['policy']:<40} success {r['success_rate']:6.1%} [{lo:.1%}, {hi:.1%}]  mean sq joint accel "
               f"{r['mean_sq_joint_accel']:9.2f} (rad/s^2)^2  p99 {r['p99_sq_joint_accel']:9.2f}  "
               f"steps/ep {r['mean_steps']:.0f}")
     if args.json:

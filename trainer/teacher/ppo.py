@@ -25,6 +25,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 from hil_sim.objects import SEEN
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.teacher.normaliser import ObsNormaliser, SharedVecNormalize
+from trainer.teacher.observation import TEACHER_OBS_DIM, TeacherObservation, teacher_observation
 from trainer.teacher.progress import Progress, TqdmSteps, append_row
 from trainer.teacher.warmstart import DaggerConfig, dagger
 
@@ -95,7 +96,7 @@ class TeacherConfig:
 
 def _make_env(config: EnvConfig) -> Monitor:
     torch.set_num_threads(1)
-    return Monitor(GraspEnv(config), info_keywords=("success",))
+    return Monitor(TeacherObservation(GraspEnv(config)), info_keywords=("success",))
 
 
 def make_vec_env(config: TeacherConfig, env_config: EnvConfig | None = None) -> SharedVecNormalize:
@@ -177,8 +178,8 @@ def _warm_start(config: TeacherConfig, model: PPO, venv: SharedVecNormalize, out
 
 
 class PPOTeacher:
-    """The ``Policy`` of a trained checkpoint: normalise the privileged observation exactly as in training,
-    then the actor's mean action (deterministic)."""
+    """The ``Policy`` of a trained checkpoint: the teacher's observation of the privileged state, normalised
+    exactly as in training, then the actor's mean action (deterministic)."""
 
     def __init__(self, model: PPO, normaliser: ObsNormaliser) -> None:
         self.model, self.normaliser = model, normaliser
@@ -188,7 +189,7 @@ class PPOTeacher:
 
     def act(self, obs) -> np.ndarray:
         priv = np.asarray(getattr(obs, "privileged", obs), np.float32)
-        action, _ = self.model.predict(self.normaliser(priv), deterministic=True)
+        action, _ = self.model.predict(self.normaliser(teacher_observation(priv)), deterministic=True)
         return np.asarray(action, np.float32)
 
 
@@ -200,4 +201,7 @@ def load(path: str | Path) -> PPOTeacher:
         raise TeacherError(f"no PPO teacher checkpoint at {path} (expected {folder / 'model.zip'})")
     torch.set_num_threads(1)
     model = PPO.load(folder / "model.zip", device="cpu")
+    if model.observation_space.shape != (TEACHER_OBS_DIM,):
+        raise TeacherError(f"{folder} observes {model.observation_space.shape} entries, this code's teacher "
+                           f"({TEACHER_OBS_DIM},): made before the yaw and category features, retrain it")
     return PPOTeacher(model, ObsNormaliser.load(folder / "normaliser.npz"))

@@ -15,9 +15,10 @@ from stable_baselines3.common.callbacks import BaseCallback
 from tqdm import tqdm
 
 CSV_FIELDS = ("stage", "env_steps", "wall_s", "episodes", "mean_return", "success_rate", "mean_length",
-              "steps_per_s")
+              "steps_per_s", "eval_success")
 """``stage``: expert (its own episodes), daggerN (learner round N, deterministic) or ppo (training rollouts,
-stochastic actions). ``steps_per_s`` is blank for the warm-start rows."""
+stochastic actions). ``steps_per_s`` is blank for the warm-start rows; ``eval_success`` (the actor alone,
+deterministic, on held-out episodes after the row's round) for the PPO rows and the expert's."""
 
 
 def append_row(csv_path: Path, row: dict) -> None:
@@ -96,12 +97,13 @@ class TqdmSteps(BaseCallback):
 def read_curve(csv_path: Path) -> dict[str, np.ndarray]:
     with csv_path.open() as f:
         rows = list(csv.DictReader(f))
-    return {k: np.array([float(r[k] or "nan") for r in rows]) for k in CSV_FIELDS if k != "stage"}
+    return {k: np.array([float(r.get(k) or "nan") for r in rows]) for k in CSV_FIELDS if k != "stage"}
 
 
 def plot_curves(curves: dict[str, Path], png: Path, smooth: int = 5) -> None:
     """Success rate and mean return vs env steps, one line per labelled CSV (moving average of ``smooth``
-    rollouts: each rollout ends only a handful of episodes)."""
+    rollouts: each rollout ends only a handful of episodes), and the held-out success of the warm start's
+    rounds as markers."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     import matplotlib.pyplot as plt
 
@@ -110,7 +112,11 @@ def plot_curves(curves: dict[str, Path], png: Path, smooth: int = 5) -> None:
         c = read_curve(path)
         for ax, key in ((ax_s, "success_rate"), (ax_r, "mean_return")):
             ax.plot(c["env_steps"], _moving_average(c[key], smooth), label=label)
-    ax_s.set(xlabel="env steps", ylabel="training success rate", ylim=(-0.02, 1.02))
+        held_out = np.isfinite(c["eval_success"])
+        if held_out.any():
+            ax_s.plot(c["env_steps"][held_out], c["eval_success"][held_out], "o", ms=4,
+                      label=f"{label}: actor alone, held-out")
+    ax_s.set(xlabel="env steps", ylabel="success rate", ylim=(-0.02, 1.02))
     ax_r.set(xlabel="env steps", ylabel="mean episode return (eq. 2-7)")
     for ax in (ax_s, ax_r):
         ax.grid(alpha=0.3)

@@ -13,6 +13,7 @@ from functools import partial
 import numpy as np
 from tqdm import tqdm
 
+from trainer.evaluate import wilson_interval
 from trainer.policies import Observation, make_policy
 from trainer.sim.env import EnvConfig, GraspEnv
 
@@ -51,6 +52,8 @@ def measure(spec: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 10_
     accel = np.concatenate([r[2] for r in results])
     per = {k: float(np.mean([ok for kind, ok, _ in results if kind == k]))
            for k in dict.fromkeys(r[0] for r in results)}
-    return {"policy": spec, "episodes": episodes, "success_rate": float(np.mean([r[1] for r in results])),
+    wins = sum(r[1] for r in results)
+    return {"policy": spec, "episodes": episodes, "success_rate": wins / episodes,
+            "ci95": wilson_interval(wins, episodes),
             "per_object": per, "mean_sq_joint_accel": float(accel.mean()),
             "p99_sq_joint_accel": float(np.percentile(accel, 99)), "mean_steps": len(accel) / episodes}
