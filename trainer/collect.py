@@ -28,7 +28,7 @@ from trainer.sim.rollout import Job, Rollout, rollouts
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m trainer collect", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--teacher", default="scripted", help="scripted | ppo:CKPT")
+    p.add_argument("--teacher", default="scripted", help="scripted | reactive | ppo:CKPT")
     p.add_argument("--episodes", type=int, required=True, help="successful episodes wanted in the store")
     p.add_argument("--out", type=Path, required=True, help="zarr store (created, or resumed if it exists)")
     p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")

@@ -28,7 +28,7 @@ from trainer.sim.sensors import SensorError, make_sensor, reads_clean_depth
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m trainer evaluate", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--policy", default="scripted", help="scripted | ppo:CKPT | student:ONNX")
+    p.add_argument("--policy", default="scripted", help="scripted | reactive | ppo:CKPT | student:ONNX")
     p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
     p.add_argument("--sensor", default="clean",
                    help="depth sensor model seen by the policy: clean | stereo[:PARAMS] | randnoise | "

@@ -4,7 +4,7 @@ A policy has ``reset(env_info)`` (the dict ``GraspEnv.reset`` returns) and ``act
 (env action: 7 joint deltas in [-1, 1] before the scale s, gripper -1/+1). ``obs`` is an ``Observation``
 holding all three views of the world, so a privileged teacher and a depth student share one loop.
 
-Specs: ``scripted`` | ``ppo:CHECKPOINT`` | ``student:ONNX``. Other engineers' modules provide
+Specs: ``scripted`` | ``reactive`` | ``ppo:CHECKPOINT`` | ``student:ONNX``. Other engineers' modules provide
 ``trainer.teacher.ppo.load(path)`` and ``trainer.student.onnx_policy.load(path)``; they are imported only
 when asked for. Add a kind by adding one entry to ``LOADERS``.
 """
@@ -52,6 +52,13 @@ def _scripted(_: str) -> Policy:
     return ScriptedExpert()
 
 
+def _reactive(_: str) -> Policy:
+    """The scripted planner with its phase read off each observation (no memory a student cannot see)."""
+    from trainer.teacher.scripted import ReactiveExpert
+
+    return ReactiveExpert()
+
+
 def _lazy(module: str, kind: str) -> Callable[[str], Policy]:
     def load(path: str) -> Policy:
         if not path:
@@ -67,18 +74,20 @@ def _lazy(module: str, kind: str) -> Callable[[str], Policy]:
 
 LOADERS: dict[str, Callable[[str], Policy]] = {
     "scripted": _scripted,
+    "reactive": _reactive,
     "ppo": _lazy("trainer.teacher.ppo", "ppo"),
     "student": _lazy("trainer.student.onnx_policy", "student"),
 }
 
-NEEDS_DEPTH = {"scripted": False, "ppo": False, "student": True}
+NEEDS_DEPTH = {"scripted": False, "reactive": False, "ppo": False, "student": True}
 """Whether the env must render depth for this kind (privileged teachers run much faster without)."""
 
 
 def parse(spec: str) -> tuple[str, str]:
     kind, _, arg = spec.partition(":")
     if kind not in LOADERS:
-        raise PolicyError(f"unknown policy {spec!r}; expected one of: scripted, ppo:CKPT, student:ONNX")
+        raise PolicyError(f"unknown policy {spec!r}; expected one of: "
+                          "scripted, reactive, ppo:CKPT, student:ONNX")
     return kind, arg
 
 

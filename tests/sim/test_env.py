@@ -58,10 +58,11 @@ def test_reward_rewards_reaching_and_penalises_jerk(env: GraspEnv) -> None:
     assert np.isfinite(r)
 
 
+@pytest.mark.parametrize("spec", ["scripted", "reactive"])
 @pytest.mark.parametrize("kind,seed", [("cube", 11), ("banana", 12), ("can", 13), ("lemon", 14)])
-def test_scripted_expert_grasps_and_lifts(env: GraspEnv, kind: str, seed: int) -> None:
+def test_scripted_expert_grasps_and_lifts(env: GraspEnv, kind: str, seed: int, spec: str) -> None:
     obs, info = env.reset(seed=seed, options={"kind": kind})
-    expert = make_policy("scripted")
+    expert = make_policy(spec)
     expert.reset(info)
     lifted_bonus = 0.0
     for _ in range(env.config.max_steps):
