@@ -49,7 +49,7 @@ def run_calibrate(args: argparse.Namespace) -> None:
     params, report = calibrate(args.real, StereoParams(), args.episodes)
     params.save(args.out, command=cmd, fits=report["fits"])
     fits = report["fits"]
-    summary = {k: fits["holes"][k] for k in ("ambient", "texture_threshold")}
+    summary = {k: fits["holes"][k] for k in ("ambient", "texture_threshold", "surface_texture")}
     print(json.dumps({**summary, "exposure_level": fits["exposure_level"], **fits["disparity_noise"],
                       **report["checks"]}))
     for key in ("hole_fraction", "holes_outside_band", "band_ratio", "holes_per_frame",

@@ -2,7 +2,8 @@
 
 A view's pixel sees a 3-D point. The point carries the projector's dot pattern where the projector
 reaches it (its ray is the first surface the projector sees), scaled by the Lambertian cosine to the
-projector and the inverse square of the distance, plus ambient light, both times the geom's IR albedo.
+projector and the inverse square of the distance, plus ambient light, both times the geom's IR albedo
+(modulated by a fixed passive texture of the surface, ``surface_texture``).
 Shiny geoms add a narrow specular lobe of the projector (a glare without dots). One auto-exposure gain
 for both imagers, read noise and 8-bit quantisation finish the images. Both imagers sample the same
 pattern on the same surfaces, which is what makes the pair matchable; where the dots are dim (dark
@@ -116,6 +117,9 @@ def radiance(view: ViewImage, intr: Intrinsics, view_offset_m: float, projector:
     cos = np.clip(np.sum(n * light, axis=-1), 0.0, 1.0)
     dots, lit = _projector_sample(pts - shift, projector, params.shadow_tolerance)
     albedo, spec, shin = materials.lookup(view.geom)
+    if params.surface_texture > 0:
+        bar_pts = pts + np.array([view_offset_m, 0.0, 0.0], np.float32)  # one frame for both imagers
+        albedo = albedo * (1.0 + params.surface_texture * value_noise(bar_pts, params.texture_cell_m))
     irradiance = lit / dist2
     image = albedo * (params.ambient + irradiance * dots * cos)
     if np.any(spec > 0):
@@ -124,6 +128,31 @@ def radiance(view: ViewImage, intr: Intrinsics, view_offset_m: float, projector:
         lobe = np.clip(np.sum(mirror * view_dir, axis=-1), 0.0, 1.0) ** shin
         image = image + spec * irradiance * lobe
     return np.where(hit, image, 0.0)
+
+
+_LATTICE = np.random.default_rng(0).uniform(-1.0, 1.0, 1 << 16).astype(np.float32)
+"""The texture's random values, looked up by a hash of the lattice cell (fixed: the same surface looks the
+same in every frame and every run)."""
+
+
+def value_noise(points: np.ndarray, cell_m: float) -> np.ndarray:
+    """A fixed random value in [-1, 1] at every corner of a ``cell_m`` lattice, interpolated trilinearly at
+    ``points`` [..., 3]: the same texture wherever the same surface point is seen from."""
+    grid = np.nan_to_num(points / np.float32(cell_m), posinf=0.0, neginf=0.0)
+    base = np.floor(grid)
+    frac = (grid - base).astype(np.float32)
+    cell = base.astype(np.int64)
+    # Spatial hash into the table (primes as in Teschner et al. 2003): no visible period for matching to
+    # confuse, unlike a wrapped small lattice.
+    hx, hy, hz = cell[..., 0] * 73856093, cell[..., 1] * 19349663, cell[..., 2] * 83492791
+    mask = len(_LATTICE) - 1
+    fx, fy, fz = frac[..., 0], frac[..., 1], frac[..., 2]
+    out = np.zeros(points.shape[:-1], np.float32)
+    for dx, wx in ((0, 1 - fx), (73856093, fx)):
+        for dy, wy in ((0, 1 - fy), (19349663, fy)):
+            for dz, wz in ((0, 1 - fz), (83492791, fz)):
+                out += wx * wy * wz * _LATTICE[((hx + dx) ^ (hy + dy) ^ (hz + dz)) & mask]
+    return out
 
 
 def expose(radiances: list[np.ndarray], params: StereoParams, rng: np.random.Generator) -> list[np.ndarray]:

@@ -41,6 +41,13 @@ class StereoParams:
     """Std of the imager's read noise, IR levels."""
     scene_albedo: float = 0.6
     """IR albedo of the table, floor and robot."""
+    surface_texture: float = 0.0
+    """(fitted) Passive IR texture of every surface (grain, print, wear): albedo x (1 + this x value noise in
+    [-1, 1]). Under ambient light it gives matching something to lock on where the dots fade (far, grazing
+    surfaces), as on real surfaces; 0 = perfectly uniform materials."""
+    texture_cell_m: float = 0.015
+    """Lattice spacing of that value noise, metres: ~1.5 working pixels at 2 m, so both imagers still
+    resolve it on the far table (4 mm cells alias there: a 3 m wall kept 35 % of its depth, 15 mm 100 %)."""
     material_probs: tuple[float, float, float] = (0.5, 0.25, 0.25)
     """Chance that an episode's object is ordinary / dark / shiny."""
     block_size: int = 5
@@ -70,7 +77,7 @@ class StereoParams:
         _check(self.num_disparities >= 16 and self.num_disparities % 16 == 0,
                f"num_disparities must be a positive multiple of 16, got {self.num_disparities}")
         for name in ("baseline_m", "projector_fov_scale", "dot_spacing_px", "dot_sigma_px", "exposure_level",
-                     "noise_correlation_px"):
+                     "noise_correlation_px", "texture_cell_m"):
             _check(getattr(self, name) > 0, f"{name} must be positive, got {getattr(self, name)}")
         for name in ("ambient", "read_noise", "texture_threshold", "disparity_noise_px", "shadow_tolerance",
                      "uniqueness_ratio", "disp12_max_diff"):
@@ -78,6 +85,8 @@ class StereoParams:
         _check(-1 <= self.min_correlation <= 1,
                f"min_correlation must be in [-1, 1], got {self.min_correlation}")
         _check(0 < self.scene_albedo <= 1, f"scene_albedo must be in (0, 1], got {self.scene_albedo}")
+        _check(0 <= self.surface_texture < 1,
+               f"surface_texture must be in [0, 1), got {self.surface_texture}")
         probs = self.material_probs
         _check(len(probs) == 3 and min(probs) >= 0 and abs(sum(probs) - 1) < 1e-6,
                f"material_probs must be 3 non-negative numbers summing to 1, got {probs}")

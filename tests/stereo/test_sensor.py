@@ -5,7 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from hil_sim.camera import d455_intrinsics
+from hil_sim.stereo import StereoParams
+from hil_sim.stereo.ir import value_noise
 from hil_sim.stereo.match import INVALID
+from hil_sim.stereo.sensor import Rig
 from tests.stereo.conftest import box_columns, box_scene, materials
 
 
@@ -82,3 +86,27 @@ def test_world_depth_matches_the_exact_depth_where_valid(world, sensor):
 def test_frame_before_reset_is_a_clear_error(world, sensor):
     with pytest.raises(RuntimeError, match="reset"):
         sensor.stream(world)
+
+
+def test_passive_surface_texture_keeps_depth_where_the_dots_fade():
+    """At 3 m the projector's dots are too dim to match on a uniform wall; the same wall with a surface
+    texture under ambient light keeps its depth, as real surfaces do."""
+    params = StereoParams.load().replace(ambient=0.2, texture_threshold=2.0)
+    holes = {}
+    for texture in (0.0, 0.6):
+        rig = Rig(params.replace(surface_texture=texture), d455_intrinsics())
+        depth = rig.wall(3.0, seed=1).depth_mm[:, 300:]  # right of the left band
+        holes[texture] = float((depth == 0).mean())
+        valid = depth[depth > 0]
+        if valid.size:
+            assert abs(np.median(valid) - 3000) < 60, "textured wall depth off by more than 2 %"
+    assert holes[0.0] > 0.5 and holes[0.6] < 0.1, holes
+
+
+def test_value_noise_is_a_fixed_function_of_the_surface_point():
+    pts = np.random.default_rng(0).uniform(-2, 2, (500, 3)).astype(np.float32)
+    a, b = value_noise(pts, 0.015), value_noise(pts.copy(), 0.015)
+    np.testing.assert_array_equal(a, b)
+    assert np.abs(a).max() <= 1.0 and a.std() > 0.1
+    near = value_noise(pts + 1e-4, 0.015)  # 0.1 mm away: almost the same value (smooth, not per-pixel)
+    assert np.abs(near - a).max() < 0.1
