@@ -5,6 +5,9 @@
 #   models/student/table2.sh evaluate   every cell -> runs/table2/*.json (skips cells already written)
 #   models/student/table2.sh table      docs/table2.json + the markdown table of the README
 #   models/student/table2.sh key        the gt and shipped rows under stereo at 180 episodes (30 per kind)
+#   models/student/table2.sh reactive   a GT student on demos of the phase-free (reactive) expert, and its cells
+# Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
+# cells are kept in runs/table2_v1 and docs/table2_v1.json.
 # Budget: the GT student of train.sh step 2, fine-tuned 8000 steps at lr 1e-4 on each source's depth of the
 # same 1000 demos (seed 0); `gt` is that GT student itself. Evaluation seeds 10000.. for every cell.
 set -euo pipefail
@@ -63,6 +66,17 @@ key() {
     done
 }
 
+reactive() {  # the recipe of train.sh step 2's first 16000 steps, on the reactive expert's demos
+    python -m trainer collect --teacher reactive --episodes 1000 --objects seen --workers 2 \
+        --out runs/sim/demos_seen_reactive.zarr
+    python -m trainer student fit --demos runs/sim/demos_seen_reactive.zarr --depth-source gt \
+        --out runs/student/reactive_gt_16k --object-loss 1 --steps 16000 --batch 32 --lr 3e-4 --warmup 200 \
+        --width 16 --head-dims 32 64 128 --threads 1 --ckpt-every 1000
+    python -m export runs/student/reactive_gt_16k/ckpt.pt --ddim-steps 4 --out runs/student/reactive_gt_16k.onnx
+    cell reactive_gt runs/student/reactive_gt_16k.onnx none clean seen 200
+    cell reactive_gt runs/student/reactive_gt_16k.onnx none stereo seen "$STEREO_EPISODES"
+}
+
 table() {  # rows in the order of STUDENTS
     local files=()
     for student in "${STUDENTS[@]}"; do
@@ -72,4 +86,4 @@ table() {  # rows in the order of STUDENTS
     python -m trainer table "${files[@]}" --out docs/table2.json
 }
 
-"${1:?usage: table2.sh train|evaluate|table|key}"
+"${1:?usage: table2.sh train|evaluate|table|key|reactive}"

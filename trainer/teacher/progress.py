@@ -17,8 +17,8 @@ from tqdm import tqdm
 CSV_FIELDS = ("stage", "env_steps", "wall_s", "episodes", "mean_return", "success_rate", "mean_length",
               "steps_per_s", "eval_success")
 """``stage``: expert (its own episodes), daggerN (learner round N, deterministic) or ppo (training rollouts,
-stochastic actions). ``steps_per_s`` is blank for the warm-start rows; ``eval_success`` (the actor alone,
-deterministic, on held-out episodes after the row's round) for the PPO rows and the expert's."""
+stochastic actions). ``steps_per_s`` is blank for the warm-start rows. ``eval_success``, the actor alone
+(deterministic) on held-out episodes after the row's round, is filled for the warm-start rows only."""
 
 
 def append_row(csv_path: Path, row: dict) -> None:
