@@ -77,9 +77,10 @@ reactive() {  # the recipe of train.sh step 2's first 16000 steps, on the reacti
     cell reactive_gt runs/student/reactive_gt_16k.onnx none stereo seen "$STEREO_EPISODES"
 }
 
-table() {  # rows in the order of STUDENTS
+table() {  # rows in the order of STUDENTS, then the reactive one; cells not measured yet are left out
     local files=()
-    for student in "${STUDENTS[@]}"; do
+    shopt -s nullglob
+    for student in "${STUDENTS[@]}" "reactive_gt"; do
         set -- $student
         files+=(runs/table2/"$1"_{clean,stereo}_*.json)
     done
