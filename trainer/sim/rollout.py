@@ -38,14 +38,22 @@ class Rollout:
     """When recording: per step ``depth``, ``state``, ``action`` (and ``rgb``), observed before acting."""
 
 
+def start_episode(env: GraspEnv, policy, job: Job, sensors: Iterable[Sensor | None] = ()) -> dict:
+    """Reset the env to ``job``, every scene sensor to its seed (same scene, same noise) and the policy to
+    the episode; returns the env's reset info."""
+    _, info = env.reset(seed=job.seed, options={"kind": job.kind})
+    for sensor in sensors:
+        if isinstance(sensor, SceneSensor):
+            sensor.reset(env.world, job.seed)
+    policy.reset(info)
+    return info
+
+
 def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor: Sensor | None = None,
                 restore: str = "none") -> Rollout:
     """Reset to ``job``, act until the episode ends; the sensor maps clean depth to what the policy sees,
     after the runtime's hole restoration ``restore``."""
-    _, info = env.reset(seed=job.seed, options={"kind": job.kind})
-    if isinstance(sensor, SceneSensor):
-        sensor.reset(env.world, job.seed)
-    policy.reset(info)
+    info = start_episode(env, policy, job, (sensor,))
     rollout = Rollout(job.seed, job.kind, False, 0, info["episode"], env.world.intr.K,
                       env.world.camera_extrinsics())
     if record:

@@ -24,8 +24,8 @@ from runtime.preprocess import DepthSpec  # noqa: E402
 from trainer.evaluate import object_list  # noqa: E402
 from trainer.policies import Observation, make_policy  # noqa: E402
 from trainer.sim.env import EnvConfig, GraspEnv  # noqa: E402
-from trainer.sim.rollout import observe  # noqa: E402
-from trainer.sim.sensors import SceneSensor, SensorError, make_sensor  # noqa: E402
+from trainer.sim.rollout import Job, observe, start_episode  # noqa: E402
+from trainer.sim.sensors import SensorError, make_sensor  # noqa: E402
 
 DEFAULT_SENSORS = "clean,randnoise,ddg_nograft:steps=5,ddg:steps=5,stereo"
 
@@ -37,12 +37,8 @@ def capture(kinds: tuple[str, ...], specs: list[str], episodes: int, steps: tupl
     frames = []
     try:
         for i in range(episodes):
-            _, info = env.reset(seed=seed + i, options={"kind": kinds[i % len(kinds)]})
-            for sensor in sensors.values():
-                if isinstance(sensor, SceneSensor):
-                    sensor.reset(env.world, seed + i)
             expert = make_policy("scripted")
-            expert.reset(info)
+            info = start_episode(env, expert, Job(seed + i, kinds[i % len(kinds)]), sensors.values())
             obs = env.observation()
             for step in range(max(steps) + 1):
                 if step in steps:
