@@ -128,3 +128,43 @@ def test_probe_locates_with_the_object_head(small_demos, tmp_path):
     checkpoint.save(untrained, checkpoint.fresh(config, checkpoint.TrainingInfo()))
     with pytest.raises(ValueError, match="records no training demos"):
         locate(str(untrained), str(small_demos), "gt", every=1)
+
+
+def test_hand_target_is_the_hand_relative_to_the_object(small_demos):
+    """The hand target is the grasp site as the simulated arm puts it at each recorded joint state (a
+    World posed at those joints, not the kinematic copy), relative to the episode's object position."""
+    import mujoco
+
+    from hil_sim.world import TABLE_Z, World
+    from trainer.dataset import DemoStore
+    from trainer.student.data import privileged_targets
+
+    store = DemoStore.open(small_demos)
+    targets = privileged_targets(store, hand_target=True)
+    np.testing.assert_array_equal(targets[:, :2], privileged_targets(store, hand_target=False))
+    state = np.asarray(store.root["data/state"][:])
+    world = World(kinds=())
+    try:
+        for i in (0, 7, len(state) - 1):
+            world.data.qpos[:7] = state[i, :7]
+            mujoco.mj_kinematics(world.model, world.data)
+            hand = world.ee_pose()[0]
+            expected = [*(targets[i, :2] - hand[:2]), hand[2] - TABLE_Z]
+            np.testing.assert_allclose(targets[i, 2:], expected, atol=1e-5)
+    finally:
+        world.close()
+    assert np.ptp(targets[:, 4]) > 0.01  # the arm moves through these demos: the targets are not constant
+
+
+def test_hand_target_widens_the_object_head_and_probe_reports_it(small_demos, tmp_path):
+    from trainer.student.probe import locate
+
+    out = tmp_path / "hand"
+    assert fit_main([*fit_args(small_demos, out, 2), "--hand-target"]) == 0
+    ckpt = checkpoint.load(out / "ckpt.pt")
+    assert ckpt.config.hand_target and ckpt.model["object_head.weight"].shape[0] == 5
+    got = locate(str(out / "ckpt.pt"), str(small_demos), "gt", every=1)
+    assert np.isfinite(got["hand_offset_err_cm"]["median"]) and "object_err_cm" in got
+    plain = tmp_path / "plain"
+    assert fit_main(fit_args(small_demos, plain, 1)) == 0
+    assert "hand_offset_err_cm" not in locate(str(plain / "ckpt.pt"), str(small_demos), "gt", every=1)

@@ -35,6 +35,9 @@ class StudentConfig:
     """Size of the sinusoidal diffusion-step embedding."""
     train_timesteps: int = 100
     """DDPM steps used in training (squared-cosine schedule, as diffusion_policy)."""
+    hand_target: bool = False
+    """The training-only object head also reads, from depth, where the hand is relative to the object:
+    object minus grasp site in x, y and the grasp site's height above the table (3 more outputs)."""
 
     def __post_init__(self) -> None:
         if self.width < 8 or self.width % 8:

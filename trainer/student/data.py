@@ -17,6 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from hil_sim.kinematics import ArmKinematics
+from hil_sim.world import TABLE_Z
 from runtime.preprocess import DepthSpec, normalise
 from trainer.dataset import DemoStore
 
@@ -37,10 +39,9 @@ class Batch:
     """float32 [B, 8], raw units."""
     action: torch.Tensor
     """float32 [B, Ha, 8], env units (joint deltas in [-1, 1] before s, gripper -1/+1)."""
-    object_xy: torch.Tensor | None
-    """float32 [B, 2]: the episode's object position on the table, standardised over the demos
-    (privileged, sim-only: the target of the auxiliary loss, never a policy input); None when the store
-    does not record it."""
+    targets: torch.Tensor | None
+    """float32 [B, 2 or 5]: ``privileged_targets`` standardised over the demos (sim-only: the auxiliary
+    loss's target, never a policy input); None when the store does not record the object's position."""
 
 
 def frame_augmenter(depth_source: str) -> Callable[[np.ndarray, np.random.Generator], np.ndarray] | None:
@@ -54,7 +55,8 @@ def frame_augmenter(depth_source: str) -> Callable[[np.ndarray, np.random.Genera
 class DemoDataset:
     """All of a store's steps in memory (uint16 depth: ~25 kB per step)."""
 
-    def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int) -> None:
+    def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int,
+                 hand_target: bool = False) -> None:
         if depth_source not in DEPTH_ARRAYS:
             raise DemoDataError(f"unknown depth source {depth_source!r}; "
                                 f"choose one of {sorted(DEPTH_ARRAYS)}")
@@ -82,8 +84,8 @@ class DemoDataset:
         steps_per_ep = store.episode_lengths
         self._start = np.repeat(starts, steps_per_ep)
         self._end = np.repeat(self.ends, steps_per_ep)
-        placed = object_positions(store)
-        self.object_xy = None if placed is None else standardise_xy(placed, placed)
+        targets = privileged_targets(store, hand_target)
+        self.targets = None if targets is None else standardise(targets, targets)
 
     def __len__(self) -> int:
         return len(self.action)
@@ -105,9 +107,9 @@ class DemoDataset:
     def batch(self, indices: np.ndarray, rng: np.random.Generator | None = None) -> Batch:
         depth = np.stack([self.depth_stack(int(i), rng) for i in indices])
         action = np.stack([self.action[self.action_indices(int(i))] for i in indices])
-        placed = None if self.object_xy is None else torch.from_numpy(self.object_xy[indices])
+        targets = None if self.targets is None else torch.from_numpy(self.targets[indices])
         return Batch(torch.from_numpy(depth), torch.from_numpy(self.state[indices]), torch.from_numpy(action),
-                     placed)
+                     targets)
 
     def fingerprint(self) -> dict:
         """Identifies the training data in the policy file's metadata."""
@@ -128,12 +130,27 @@ def object_positions(store: DemoStore) -> np.ndarray | None:
     return np.repeat(per_episode, store.episode_lengths, axis=0)
 
 
-def xy_scale(reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and (floored) std of ``reference`` positions: the auxiliary loss's units."""
+def privileged_targets(store: DemoStore, hand_target: bool) -> np.ndarray | None:
+    """Per step [N, 2], metres: the object's table position (``object_positions``); with ``hand_target``
+    [N, 5]: then the hand relative to it, from the recorded joint state by forward kinematics (object minus
+    grasp site in x and y, and the grasp site's height above the table), which decides where to move and
+    when to close. None if an episode does not record the object's position."""
+    placed = object_positions(store)
+    if placed is None or not hand_target:
+        return placed
+    kinematics = ArmKinematics()
+    state = np.asarray(store.root["data/state"][: len(placed)], dtype=np.float64)
+    hand = np.array([kinematics.site(np.r_[q[:7], 0.0, 0.0])[0] for q in state])  # fingers: no effect
+    return np.column_stack([placed, placed - hand[:, :2], hand[:, 2] - TABLE_Z]).astype(np.float32)
+
+
+def column_scale(reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and (floored) std of each column of ``reference``: the auxiliary loss's units."""
     return reference.mean(0), np.maximum(reference.std(0), 1e-6)
 
 
-def standardise_xy(xy: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Metres -> the auxiliary loss's units: zero mean, unit std over ``reference`` (the training demos)."""
-    mean, std = xy_scale(reference)
-    return ((xy - mean) / std).astype(np.float32)
+def standardise(values: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Metres -> the auxiliary loss's units: zero mean, unit std per column over ``reference`` (the
+    training demos)."""
+    mean, std = column_scale(reference)
+    return ((values - mean) / std).astype(np.float32)

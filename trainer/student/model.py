@@ -167,8 +167,9 @@ class StudentPolicy(nn.Module):
                                        nn.Linear(config.state_features, config.state_features))
         obs_dim = self.encoder.out_features + config.state_features
         self.head = ConditionalUnet1d(config.action_dim, obs_dim, config.head_dims, config.step_features)
-        self.object_head = nn.Linear(self.encoder.out_features, 2)
-        """Training only (not in the exported graph): the object's table position from the depth features."""
+        self.object_head = nn.Linear(self.encoder.out_features, 5 if config.hand_target else 2)
+        """Training only (not in the exported graph): the object's table position from the depth features,
+        then (``hand_target``) the hand's offset from it (``trainer.student.data.privileged_targets``)."""
 
     def encode(self, depth: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """Preprocessed depth [B, To, H, W] + raw state [B, S] -> observation feature [B, F]."""

@@ -26,7 +26,7 @@ from runtime.policy import PolicyError
 from trainer.dataset import DatasetError, DemoStore
 from trainer.student import checkpoint
 from trainer.student.checkpoint import CheckpointError
-from trainer.student.data import DemoDataError, DemoDataset, object_positions, xy_scale
+from trainer.student.data import DemoDataError, DemoDataset, column_scale, privileged_targets
 from trainer.student.onnx_policy import StudentOnnxPolicy, to_env_actions
 
 
@@ -55,12 +55,14 @@ def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
 
 
 def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
-    """The object head's error on ``demos`` (cm), against predicting the training demos' mean position."""
+    """The object head's error on ``demos`` (cm), against predicting the training demos' mean position; for
+    a head with the hand target also the error of the hand's offset from the object."""
     ckpt = checkpoint.load(Path(ckpt_path))
     if "demos" not in ckpt.info.data:
         raise DemoDataError(f"{ckpt_path} records no training demos (an untrained checkpoint?)")
-    trained_on = object_positions(DemoStore.open(ckpt.info.data["demos"]))
-    probed = object_positions(DemoStore.open(demos))
+    hand = ckpt.config.hand_target
+    trained_on = privileged_targets(DemoStore.open(ckpt.info.data["demos"]), hand)
+    probed = privileged_targets(DemoStore.open(demos), hand)
     if trained_on is None or probed is None:
         raise DemoDataError("object positions are not recorded in the training or the probed demos")
     data = DemoDataset(demos, depth_source, ckpt.config.obs_horizon, ckpt.config.action_horizon)
@@ -68,10 +70,15 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     net = ckpt.policy()
     with torch.no_grad():
         predicted = net.object_head(net.encoder(data.batch(steps).depth)).numpy()
-    mean, std = xy_scale(trained_on)
-    err, mean_err = (np.linalg.norm(x - probed[steps], axis=1) * 100 for x in (predicted * std + mean, mean))
-    return {"object_err_cm": {"median": float(np.median(err)), "mean": float(err.mean())},
-            "mean_position_err_cm": float(mean_err.mean())}
+    mean, std = column_scale(trained_on)
+    predicted = predicted * std + mean
+    err, mean_err = (np.linalg.norm(x[..., :2] - probed[steps, :2], axis=1) * 100 for x in (predicted, mean))
+    result = {"object_err_cm": {"median": float(np.median(err)), "mean": float(err.mean())},
+              "mean_position_err_cm": float(mean_err.mean())}
+    if hand:
+        hand_err = np.linalg.norm(predicted[:, 2:] - probed[steps, 2:], axis=1) * 100
+        result["hand_offset_err_cm"] = {"median": float(np.median(hand_err)), "mean": float(hand_err.mean())}
+    return result
 
 
 def _env_chunk(policy: StudentOnnxPolicy, stack: np.ndarray, state: np.ndarray,

@@ -57,7 +57,8 @@ class FitConfig:
     weight_decay: float = 1e-6
     object_loss: float = 1.0
     """Weight of the auxiliary loss: predict the object's table position (privileged, sim-only) from the
-    depth features. Without it the students learned to ignore depth (docs/student.md); 0 = eq. 10 alone."""
+    depth features, and with the model's ``--hand-target`` the hand's offset from it. Without it the
+    students learned to ignore depth (docs/student.md); 0 = eq. 10 alone."""
     ema_max: float = 0.9999
     """Ceiling of the EMA decay; the decay ramps up as 1 - (1 + step)^-0.75 (diffusion_policy)."""
     ckpt_every: int = 500
@@ -98,7 +99,7 @@ class DenoisingLoss(nn.Module):
         denoising = nn.functional.mse_loss(self.policy(noisy, k, obs), noise)
         if not self.object_weight:
             return denoising, denoising
-        located = nn.functional.mse_loss(self.policy.object_head(features), batch.object_xy)
+        located = nn.functional.mse_loss(self.policy.object_head(features), batch.targets)
         return denoising + self.object_weight * located, denoising
 
 
@@ -183,8 +184,9 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
         torch.set_num_threads(cfg.threads)
     if cfg.batch % world:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
-    data = DemoDataset(cfg.demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon)
-    if cfg.object_loss and data.object_xy is None:
+    data = DemoDataset(cfg.demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
+                       model_cfg.hand_target)
+    if cfg.object_loss and data.targets is None:
         raise FitError(f"{cfg.demos} does not record object_xy for every episode; train with --object-loss 0")
     ckpt = start_or_resume(cfg, model_cfg, data)
     net = StudentPolicy(model_cfg)

@@ -18,7 +18,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from hil_sim.world import HOME_Q, TABLE_Z, World
+from hil_sim.kinematics import ArmKinematics, rotation_error
+from hil_sim.world import TABLE_Z
 
 _OBJ = slice(25, 28)
 _Goal = tuple[np.ndarray, np.ndarray, float]
@@ -74,7 +75,7 @@ class ScriptedExpert:
 
     def __init__(self, config: ExpertConfig | None = None) -> None:
         self.config = config or ExpertConfig()
-        self._kin = _Kinematics()
+        self._kin = ArmKinematics()
         self._phase, self._count = Phase.APPROACH, 0
         self._target = np.zeros(3)
         self._extent = np.full(3, 0.03)
@@ -169,7 +170,7 @@ class ReactiveExpert(ScriptedExpert):
             self._phase = Phase.LIFT
             return self._target + ee - priv[_OBJ], rot, 1.0
         rel = ee - grasp
-        angle = np.linalg.norm(_rotation_error(rot, rot_goal))
+        angle = np.linalg.norm(rotation_error(rot, rot_goal))
         offset = np.linalg.norm(rel[:2])
         if offset < c.pos_tol_m and rel[2] < c.pos_tol_m and angle < _ANGLE_TOL:
             self._phase = Phase.CLOSE
@@ -191,52 +192,6 @@ def _holding(priv: np.ndarray, ee: np.ndarray) -> bool:
                 and priv[_FINGERS].sum() > _SHUT_M)
 
 
-class _Kinematics:
-    """A robot-only copy of the world for forward kinematics and Jacobians."""
-
-    def __init__(self) -> None:
-        world = World(kinds=())
-        self.model = world.model
-        self.data = mujoco.MjData(world.model)
-        self._site_id = world.model.site("end_effector").id
-        self._n = 9
-
-    def _set(self, q9: np.ndarray) -> None:
-        self.data.qpos[: self._n] = q9
-        mujoco.mj_kinematics(self.model, self.data)
-
-    def site(self, q9: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        self._set(q9)
-        sid = self._site_id
-        return self.data.site_xpos[sid].copy(), self.data.site_xmat[sid].reshape(3, 3).copy()
-
-    def solve(self, q9: np.ndarray, pos: np.ndarray, rot: np.ndarray, c: ExpertConfig) -> np.ndarray:
-        """Joint angles putting the grasp site at ``pos`` with frame ``rot`` (damped least squares)."""
-        q = np.array(q9, float)
-        for _ in range(c.ik_iters):
-            err, J = self._error_jacobian(q, pos, rot)
-            if np.linalg.norm(err) < 1e-4:
-                break
-            q[:7] += J.T @ np.linalg.solve(J @ J.T + c.ik_damping**2 * np.eye(6), err)
-        _, J = self._error_jacobian(q, pos, rot)
-        null = np.eye(7) - np.linalg.pinv(J) @ J
-        return q[:7] + null @ (c.null_gain * (np.asarray(HOME_Q) - q[:7]))
-
-    def _error_jacobian(self, q: np.ndarray, pos: np.ndarray, rot: np.ndarray) -> tuple[np.ndarray, ...]:
-        self._set(q)
-        mujoco.mj_comPos(self.model, self.data)
-        jacp, jacr = np.zeros((3, self.model.nv)), np.zeros((3, self.model.nv))
-        mujoco.mj_jacSite(self.model, self.data, jacp, jacr, self._site_id)
-        cur = self.data.site_xmat[self._site_id].reshape(3, 3)
-        err = np.concatenate([pos - self.data.site_xpos[self._site_id], _rotation_error(cur, rot)])
-        return err, np.vstack([jacp[:, :7], jacr[:, :7]])
-
-
-def _rotation_error(rot: np.ndarray, goal: np.ndarray) -> np.ndarray:
-    """Small-angle rotation vector taking ``rot`` to ``goal``."""
-    return 0.5 * sum(np.cross(rot[:, i], goal[:, i]) for i in range(3))
-
-
 def _top_down(yaw: float) -> np.ndarray:
     """Hand frame with z down and the finger closing axis (y) at ``yaw``."""
     y = np.array([np.cos(yaw), np.sin(yaw), 0.0])
@@ -245,7 +200,7 @@ def _top_down(yaw: float) -> np.ndarray:
 
 
 def _arrived(pos: np.ndarray, goal: np.ndarray, rot: np.ndarray, rot_goal: np.ndarray, tol: float) -> bool:
-    angle = np.linalg.norm(_rotation_error(rot, rot_goal))
+    angle = np.linalg.norm(rotation_error(rot, rot_goal))
     return bool(np.linalg.norm(goal - pos) < tol and angle < _ANGLE_TOL)
 
 
