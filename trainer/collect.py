@@ -28,7 +28,9 @@ from trainer.sim.rollout import Job, Rollout, rollouts
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m trainer collect", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--teacher", default="scripted", help="scripted | reactive | ppo:CKPT")
+    p.add_argument("--teacher", default="scripted",
+                   help="scripted | reactive | ppo:CKPT | takeover:STUDENT.onnx (the student drives, then "
+                        "the reactive expert takes over; only the expert's steps are stored: recovery demos)")
     p.add_argument("--episodes", type=int, required=True, help="successful episodes wanted in the store")
     p.add_argument("--out", type=Path, required=True, help="zarr store (created, or resumed if it exists)")
     p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
@@ -43,7 +45,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _record(r: Rollout, spec_shape: tuple[int, int]) -> EpisodeRecord:
-    f = r.frames
+    """The episode's steps from the first one a teacher acted on (all of them, but for a takeover)."""
+    f = {key: frames[r.taught_from:] for key, frames in r.frames.items()}
     depth = (np.stack(f["depth"]) if f["depth"] and f["depth"][0] is not None
              else np.zeros((len(f["action"]), *spec_shape), np.uint16))
     return EpisodeRecord(depth, np.stack(f["state"]), np.stack(f["action"]), r.kind, r.seed,

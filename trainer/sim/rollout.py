@@ -36,6 +36,8 @@ class Rollout:
     camera_extrinsics: np.ndarray
     frames: dict[str, list[np.ndarray]] = field(default_factory=dict)
     """When recording: per step ``depth``, ``state``, ``action`` (and ``rgb``), observed before acting."""
+    taught_from: int = 0
+    """First step a teacher acted (a takeover policy's switch step; 0 for a teacher alone)."""
 
 
 def start_episode(env: GraspEnv, policy, job: Job, sensors: Iterable[Sensor | None] = ()) -> dict:
@@ -72,6 +74,7 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
         rollout.steps += 1
         if terminated or truncated:
             rollout.success = bool(info["success"])
+            rollout.taught_from = getattr(policy, "taught_from", 0)
             return rollout
 
 
