@@ -65,3 +65,21 @@ def test_store_at_another_resolution_is_refused_before_any_work(tmp_path, tiny_m
     with pytest.raises(FrameError, match=r"\[N, 96, 128\] \(the model's resolution\), got uint16 \[4, 120"):
         _run(tmp_path / "big.zarr", tiny_model)
     assert "data/depth_ddg" not in zarr.open_group(str(tmp_path / "big.zarr"), mode="r")
+
+
+def test_a_store_that_grew_gets_its_new_frames_and_keeps_the_old(tiny_demos, tiny_model, tmp_path):
+    """collect resumed into a store after generation: the next run fills only the new frames (and the old
+    partial last chunk again, identically), ending where a single run over the grown store ends."""
+    root = zarr.open_group(str(tiny_demos), mode="r+")
+    full = np.asarray(root["data/depth"])
+    whole = tmp_path / "whole.zarr"
+    shutil.copytree(tiny_demos, whole)
+    _run(whole, tiny_model)
+    root["data/depth"].resize((12, *full.shape[1:]))  # the store as it was before its last 8 frames
+    assert _run(tiny_demos, tiny_model)["frames"] == 12
+    root["data/depth"].resize(full.shape)
+    root["data/depth"][12:] = full[12:]
+    assert _run(tiny_demos, tiny_model)["frames"] == 12  # chunk [8, 16) again, then [16, 20)
+    grown, single = zarr.open_group(str(tiny_demos), mode="r"), zarr.open_group(str(whole), mode="r")
+    for name in ("data/depth_ddg", "data/depth_ddg_nograft", "meta/ddg_done"):
+        np.testing.assert_array_equal(np.asarray(grown[name]), np.asarray(single[name]))

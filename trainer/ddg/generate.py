@@ -109,9 +109,26 @@ def _outputs(root: zarr.Group, cfg: GenerateConfig, shape: tuple[int, ...]):
                              "delete data/depth_ddg* and meta/ddg_done to regenerate")
     if previous is None:
         root.attrs["ddg"] = settings
+    n_chunks = -(-shape[0] // cfg.chunk)
+    if "meta/ddg_done" in root:
+        _grow(root, shape, n_chunks, cfg.chunk)
     chunks = (cfg.chunk, *shape[1:])
     outs = {name: root.require_array(f"data/{name}", shape=shape, dtype="uint16", chunks=chunks,
                                      fill_value=0) for name in ("depth_ddg", "depth_ddg_nograft")}
-    n_chunks = -(-shape[0] // cfg.chunk)
     done = root.require_array("meta/ddg_done", shape=(n_chunks,), dtype="bool", chunks=(1,), fill_value=False)
     return outs, done
+
+
+def _grow(root: zarr.Group, shape: tuple[int, ...], n_chunks: int, chunk: int) -> None:
+    """Episodes appended since the last run (``collect`` resumed into the store): lengthen the outputs and
+    the chunk record; a chunk that was the last, partial one then has new frames, so it is done again
+    (frames are seeded by index: its old frames come out the same)."""
+    old = root["data/depth_ddg"].shape[0]
+    if old == shape[0]:
+        return
+    for name in ("depth_ddg", "depth_ddg_nograft"):
+        root[f"data/{name}"].resize(shape)
+    done = root["meta/ddg_done"]
+    done.resize((n_chunks,))
+    if old % chunk:
+        done[old // chunk] = False
