@@ -6,6 +6,8 @@
 #   models/student/table2.sh table      docs/table2.json + the markdown table of the README
 #   models/student/table2.sh key        the gt and shipped rows under stereo at 180 episodes (30 per kind)
 #   models/student/table2.sh reactive   a GT student on demos of the phase-free (reactive) expert, and its cells
+#   models/student/table2.sh dagger     the hand-target GT student, recovery demos where it drives, the students
+#                                       fine-tuned on them (and the same budget without them), and their cells
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
 # cells are kept in runs/table2_v1 and docs/table2_v1.json.
 # Budget: the GT student of train.sh step 2, fine-tuned 8000 steps at lr 1e-4 on each source's depth of the
@@ -33,7 +35,9 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "ddg runs/student/ddg2_ft_8k.onnx none"
           "randnoise runs/student/randnoise_ft_8k.onnx none"
           "ddg_nograft runs/student/ddg_nograft_ft_8k.onnx none"
-          "shipped runs/student/ddg2_ft_20k.onnx none")  # models/student.onnx: the ddg student at 20000 steps
+          "shipped runs/student/ddg2_ft_20k.onnx none"  # models/student.onnx: the ddg student at 20000 steps
+          "gt_hand runs/student/gt_hand_more_8k.onnx none"  # `dagger` step 3, without the recovery demos
+          "ddg_hand runs/student/ddg_hand_8k.onnx none")  # `dagger` step 4
 
 cell() {  # name model restore sensor objects episodes [folder]
     local json=${7:-runs/table2}/$1_$4_$5_$6.json
@@ -75,6 +79,36 @@ reactive() {  # the recipe of train.sh step 2's first 16000 steps, on the reacti
     python -m export runs/student/reactive_gt_16k/ckpt.pt --ddim-steps 4 --out runs/student/reactive_gt_16k.onnx
     cell reactive_gt runs/student/reactive_gt_16k.onnx none clean seen 200
     cell reactive_gt runs/student/reactive_gt_16k.onnx none stereo seen "$STEREO_EPISODES"
+}
+
+fit() {  # out demos depth-source threads steps [more fit flags]: the GT student's recipe (table2 fine-tunes: --init)
+    local out=$1 demos=$2 source=$3 threads=$4 steps=$5
+    shift 5
+    python -m trainer student fit --demos "$demos" --depth-source "$source" --out "runs/student/$out" \
+        --object-loss 1 --hand-target --steps "$steps" --batch 32 --width 16 --head-dims 32 64 128 \
+        --warmup 200 --threads "$threads" --ckpt-every 1000 "$@"
+    python -m export "runs/student/$out/ckpt.pt" --ddim-steps 4 --out "runs/student/$out.onnx"
+}
+
+dagger() {
+    # 1. The GT student of train.sh step 2's first 16000 steps, its object head also reading the hand's offset.
+    fit gt_hand_16k runs/sim/demos_seen.zarr gt 2 16000 --lr 3e-4
+    # 2. Recovery demos: it drives to a seeded step in [5, 50), the reactive expert finishes; 800 successful
+    #    episodes (seeds 61002..) appended to a copy of the 1000 scripted demos.
+    [ -d runs/sim/demos_seen_takeover.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_takeover.zarr
+    python -m trainer collect --teacher takeover:runs/student/gt_hand_16k.onnx --episodes 1800 --seed 60000 \
+        --workers 2 --out runs/sim/demos_seen_takeover.zarr
+    # 3. 8000 more steps from it (lr 1e-4, as the table's fine-tunes) with and without the recovery demos, side by side.
+    fit gt_hand_takeover_8k runs/sim/demos_seen_takeover.zarr gt 1 8000 --lr 1e-4 \
+        --init runs/student/gt_hand_16k/ckpt.pt &
+    fit gt_hand_more_8k runs/sim/demos_seen.zarr gt 1 8000 --lr 1e-4 --init runs/student/gt_hand_16k/ckpt.pt
+    wait
+    for name in gt_hand_16k gt_hand_takeover_8k gt_hand_more_8k; do
+        cell "$name" "runs/student/$name.onnx" none clean seen 200
+    done
+    # 4. The better of the two (without recovery demos) fine-tuned on the DDG depth of the 1000 demos, as `train`;
+    #    its cells and gt_hand's (the same file as gt_hand_more_8k) come from `evaluate`.
+    fit ddg_hand_8k runs/sim/demos_seen.zarr ddg 1 8000 --lr 1e-4 --init runs/student/gt_hand_more_8k/ckpt.pt
 }
 
 table() {  # rows in the order of STUDENTS, then the reactive one; cells not measured yet are left out
