@@ -2,7 +2,9 @@
 
 Episodes cycle through the chosen object kinds (equal counts per kind) with seeds seed, seed+1, ...;
 prints a per-object table and writes {"success_rate", "ci95", "episodes", "per_object": {kind: rate}, ...} as
-JSON; ``ci95`` is the Wilson score interval of the success rate.
+JSON; ``ci95`` is the Wilson score interval of the success rate. ``first_close`` says where the hand was when
+the policy first closed the gripper (object minus grasp site, cm, world frame): a policy that fails by
+closing beside or above its objects shows it there.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 from tqdm import tqdm
 
 from hil_sim.objects import GROUPS, ObjectError, resolve
@@ -72,22 +75,42 @@ def evaluate(policy: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 
                        render_depth=NEEDS_DEPTH[kind] and reads_clean_depth(sensor))
     jobs = [Job(seed + i, kinds[i % len(kinds)]) for i in range(episodes)]
     per: dict[str, list[bool]] = {k: [] for k in kinds}
-    steps, start = [], time.perf_counter()
+    steps, closes, start = [], [], time.perf_counter()
     runs = rollouts(config, policy, jobs, workers=workers, sensor_spec=sensor, restore=restore)
     for r in tqdm(runs, total=episodes, desc=f"evaluate {policy}", unit="ep"):
         per[r.kind].append(r.success)
         steps.append(r.steps)
+        if r.closed_at is not None:
+            closes.append(r.closed_at)
     total = sum(map(sum, per.values()))
     return {"success_rate": total / episodes, "ci95": [round(b, 4) for b in wilson_interval(total, episodes)],
             "episodes": episodes, "per_object": {k: sum(v) / len(v) for k, v in per.items() if v},
             "policy": policy, "sensor": sensor, "restore": restore, "objects": list(kinds), "seed": seed,
-            "mean_steps": sum(steps) / max(1, len(steps)), "seconds": round(time.perf_counter() - start, 1)}
+            "mean_steps": sum(steps) / max(1, len(steps)), "first_close": first_close(closes),
+            "seconds": round(time.perf_counter() - start, 1)}
+
+
+def first_close(closes: list[tuple[int, np.ndarray]]) -> dict:
+    """Episodes whose policy closed the gripper, the median step it first did, and the object's offset from
+    the grasp site then: mean and std per axis, and the median horizontal distance (cm)."""
+    if not closes:
+        return {"episodes": 0}
+    offsets = np.array([offset for _, offset in closes]) * 100
+    return {"episodes": len(closes), "median_step": float(np.median([step for step, _ in closes])),
+            "offset_cm_mean": offsets.mean(0).round(2).tolist(),
+            "offset_cm_std": offsets.std(0).round(2).tolist(),
+            "horizontal_cm_median": round(float(np.median(np.linalg.norm(offsets[:, :2], axis=1))), 2)}
 
 
 def table(result: dict) -> str:
     rows = [f"{'object':<12} {'success':>8}"]
     rows += [f"{k:<12} {v:>8.1%}" for k, v in result["per_object"].items()]
     lo, hi = result["ci95"]
+    closes = result["first_close"]
+    if closes["episodes"]:
+        rows.append(f"first close in {closes['episodes']} episodes, median step {closes['median_step']:.0f}: "
+                    f"object - hand {closes['offset_cm_mean']} cm (std {closes['offset_cm_std']}), "
+                    f"{closes['horizontal_cm_median']} cm apart horizontally (median)")
     rows.append(f"{'ALL':<12} {result['success_rate']:>8.1%}  (95 % CI {lo:.1%}-{hi:.1%}; "
                 f"{result['episodes']} episodes, {result['policy']}, sensor {result['sensor']}, "
                 f"restore {result['restore']})")

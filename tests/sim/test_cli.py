@@ -55,7 +55,12 @@ def test_evaluate_writes_the_json_contract(tmp_path, capsys) -> None:
     assert result["success_rate"] == pytest.approx(np.mean(list(result["per_object"].values())))
     lo, hi = result["ci95"]
     assert 0.0 <= lo <= result["success_rate"] <= hi <= 1.0 and hi - lo > 0.3  # 2 episodes say little
-    assert "ALL" in capsys.readouterr().out
+    # The scripted expert closes centred over the object, the grasp site 1-5 cm above its centre.
+    closes = result["first_close"]
+    assert closes["episodes"] == 2 and 20 < closes["median_step"] < 100
+    assert closes["horizontal_cm_median"] < 1.0 and -5.0 < closes["offset_cm_mean"][2] < -1.0
+    out = capsys.readouterr().out
+    assert "first close in 2 episodes" in out and out.rstrip().splitlines()[-1].startswith("ALL")
 
 
 @pytest.mark.parametrize("successes,n", [(0, 10), (5, 10), (10, 10), (1, 30), (81, 263)])

@@ -15,7 +15,7 @@ import numpy as np
 
 from runtime.preprocess import crop_resize, restore_holes
 from trainer.policies import Observation, make_policy
-from trainer.sim.env import EnvConfig, GraspEnv
+from trainer.sim.env import OBJECT_FROM_HAND, EnvConfig, GraspEnv
 from trainer.sim.sensors import SceneSensor, Sensor, make_sensor
 
 
@@ -38,6 +38,9 @@ class Rollout:
     """When recording: per step ``depth``, ``state``, ``action`` (and ``rgb``), observed before acting."""
     taught_from: int = 0
     """First step a teacher acted (a takeover policy's switch step; 0 for a teacher alone)."""
+    closed_at: tuple[int, np.ndarray] | None = None
+    """The step the policy first commanded the gripper shut, and the object's position from the grasp site
+    then (m, world frame): how far from the object a grasp was tried. None if it never closed."""
 
 
 def start_episode(env: GraspEnv, policy, job: Job, sensors: Iterable[Sensor | None] = ()) -> dict:
@@ -65,6 +68,8 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
         depth = info.get("depth")
         seen = partial(observe, sensor, env, depth, restore)
         action = np.asarray(policy.act(Observation(obs, seen, info["state"])), np.float32)
+        if rollout.closed_at is None and action[7] > 0:
+            rollout.closed_at = (rollout.steps, obs[OBJECT_FROM_HAND].copy())
         if record:
             for key, value in (("depth", depth), ("state", info["state"]), ("action", action),
                                ("rgb", info.get("rgb"))):
