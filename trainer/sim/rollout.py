@@ -54,6 +54,24 @@ def start_episode(env: GraspEnv, policy, job: Job, sensors: Iterable[Sensor | No
     return info
 
 
+def expert_scenes(env: GraspEnv, kinds: tuple[str, ...], episodes: int, steps: tuple[int, ...], seed: int,
+                  sensors: Iterable[Sensor | None] = ()) -> Iterator[tuple[int, int, dict]]:
+    """The scripted expert through ``episodes`` episodes (seeds ``seed``.., kinds in turn), pausing at each of
+    ``steps``: yields (episode, step, the env's info) with the world in that state. An episode that ends
+    before a step yields only the steps it reached."""
+    sensors = list(sensors)
+    for i in range(episodes):
+        expert = make_policy("scripted")
+        info = start_episode(env, expert, Job(seed + i, kinds[i % len(kinds)]), sensors)
+        obs = env.observation()
+        for step in range(max(steps) + 1):
+            if step in steps:
+                yield i, step, info
+            obs, _, terminated, truncated, info = env.step(expert.act(Observation(obs, None, info["state"])))
+            if terminated or truncated:
+                break
+
+
 def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor: Sensor | None = None,
                 restore: str = "none") -> Rollout:
     """Reset to ``job``, act until the episode ends; the sensor maps clean depth to what the policy sees,

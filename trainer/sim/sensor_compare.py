@@ -22,9 +22,8 @@ import numpy as np  # noqa: E402
 
 from runtime.preprocess import DepthSpec  # noqa: E402
 from trainer.evaluate import object_list  # noqa: E402
-from trainer.policies import Observation, make_policy  # noqa: E402
 from trainer.sim.env import EnvConfig, GraspEnv  # noqa: E402
-from trainer.sim.rollout import Job, observe, start_episode  # noqa: E402
+from trainer.sim.rollout import expert_scenes, observe  # noqa: E402
 from trainer.sim.sensors import SensorError, make_sensor  # noqa: E402
 
 DEFAULT_SENSORS = "clean,randnoise,ddg_nograft:steps=5,ddg:steps=5,stereo"
@@ -34,19 +33,11 @@ def capture(kinds: tuple[str, ...], specs: list[str], episodes: int, steps: tupl
             ) -> list[dict[str, np.ndarray]]:
     """One {sensor spec: uint16 frame} per (episode, step)."""
     env, sensors = GraspEnv(EnvConfig(objects=kinds)), {s: make_sensor(s) for s in specs}
-    frames = []
     try:
-        for i in range(episodes):
-            expert = make_policy("scripted")
-            info = start_episode(env, expert, Job(seed + i, kinds[i % len(kinds)]), sensors.values())
-            obs = env.observation()
-            for step in range(max(steps) + 1):
-                if step in steps:
-                    frames.append({s: observe(sn, env, info["depth"], "none") for s, sn in sensors.items()})
-                obs, *_, info = env.step(expert.act(Observation(obs, None, info["state"])))
+        return [{s: observe(sn, env, info["depth"], "none") for s, sn in sensors.items()}
+                for _, _, info in expert_scenes(env, kinds, episodes, steps, seed, sensors.values())]
     finally:
         env.close()
-    return frames
 
 
 def statistics(frames: list[dict[str, np.ndarray]], spec: DepthSpec | None = None
