@@ -7,8 +7,9 @@ import json
 import numpy as np
 import pytest
 
+from runtime.preprocess import DepthSpec, crop_resize
 from trainer.ddg.bank import fused_frames
-from trainer.ddg.data import load_real_dir
+from trainer.ddg.data import load_real_dir, policy_crop
 from trainer.sim.capture import CaptureError, capture, main
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import expert_scenes
@@ -27,6 +28,21 @@ def test_frames_read_back_as_d4xx_sequences_one_per_episode(tmp_path):
     assert len(fused_frames(frames)) == 4  # the DDG's temporal fusion runs over each episode's frames
     manifest = json.loads((tmp_path / "a" / "MANIFEST.json").read_text())
     assert manifest["n_frames"] == 4 and "RealSense D455" in manifest["frames"][0]["sensor"]
+
+
+def test_frames_keep_their_episode_policy_window_and_are_judged_there(tmp_path):
+    capture("stereo", ("pear",), 1, (0,), 70_200, tmp_path / "w")
+    (frame,) = load_real_dir(tmp_path / "w")
+    env = GraspEnv(EnvConfig(objects=("pear",), render_depth=False))
+    try:
+        env.reset(seed=70_200, options={"kind": "pear"})
+        window = env.world.episode.crop_window
+    finally:
+        env.close()
+    assert frame.window == tuple(window)
+    crop, _, used = policy_crop(frame.depth_mm, np.random.default_rng(0), window=frame.window)
+    assert used == tuple(window)
+    np.testing.assert_array_equal(crop, crop_resize(frame.depth_mm, DepthSpec(), window))
 
 
 def test_same_seed_same_frames(tmp_path):

@@ -49,6 +49,9 @@ class RealFrame:
     sequence: str
     index: int
     rgb: np.ndarray | None = None
+    window: tuple[int, int] | None = None
+    """(top, left) of the policy's crop when the frame was taken by the robot's own camera (a simulated
+    capture records its episode's window); None for captures from elsewhere."""
 
 
 def metres_to_mm(depth_m: np.ndarray, name: str = "depth") -> np.ndarray:
@@ -105,11 +108,15 @@ def crop_spec(height: int, width: int, scale: float | None = None,
 
 
 def policy_crop(depth_mm: np.ndarray, rng: np.random.Generator | None = None, scale: float | None = None,
-                spec: DepthSpec = POLICY_SPEC) -> tuple[np.ndarray, DepthSpec, tuple[int, int]]:
-    """Crop a frame of any size to the policy resolution with the shared ``crop_resize``: centred window when
-    ``rng`` is None, else a random one. Returns (uint16 crop, its DepthSpec, (top, left))."""
+                spec: DepthSpec = POLICY_SPEC, window: tuple[int, int] | None = None
+                ) -> tuple[np.ndarray, DepthSpec, tuple[int, int]]:
+    """Crop a frame of any size to the policy resolution with the shared ``crop_resize``: at ``window`` when
+    given, else centred when ``rng`` is None, else at random. Returns (uint16 crop, its DepthSpec,
+    (top, left))."""
     s = crop_spec(*depth_mm.shape, scale=scale, spec=spec)
-    if rng is None:
+    if window is not None:
+        window = (int(window[0]), int(window[1]))
+    elif rng is None:
         window = s.centred_window()
     else:
         window = (int(rng.integers(0, s.stream_height - s.crop_height + 1)),
@@ -137,7 +144,8 @@ def _load_frame(f: Path, meta: dict) -> RealFrame:
         raise RealDataError(f"{f}: rgb {rgb.shape[:2]} and depth {depth.shape} resolutions differ")
     _check_forbidden(f, meta)
     seq = meta.get("sequence_id") or f.stem
-    return RealFrame(f.stem, depth, _sensor_kind(meta), seq, int(meta.get("frame_index") or 0), rgb)
+    window = tuple(meta["policy_window"]) if "policy_window" in meta else None
+    return RealFrame(f.stem, depth, _sensor_kind(meta), seq, int(meta.get("frame_index") or 0), rgb, window)
 
 
 def _sensor_kind(meta: dict) -> str:

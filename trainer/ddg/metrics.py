@@ -163,8 +163,9 @@ def _real_sets(cfg: MetricsConfig, rng: np.random.Generator) -> tuple[Crops, dic
 
 
 def _crops(frames, which: np.ndarray, rng: np.random.Generator) -> Crops:
-    """One random policy crop of ``frames[i]`` for each i in ``which``."""
-    return np.stack([policy_crop(frames[i].depth_mm, rng)[0] for i in which]), which
+    """One policy crop of ``frames[i]`` for each i in ``which``: at the frame's own policy window when it
+    has one (a capture by the robot's camera), else at random."""
+    return np.stack([policy_crop(frames[i].depth_mm, rng, window=frames[i].window)[0] for i in which]), which
 
 
 def _ddg_sources(cfg: MetricsConfig, sim: np.ndarray) -> dict[str, np.ndarray]:
