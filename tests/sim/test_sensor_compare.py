@@ -26,5 +26,5 @@ def test_statistics_separate_lost_pixels_in_and_beyond_the_policy_range():
 
 
 def test_the_reference_must_be_clean(capsys):
-    assert main(["--sensors", "stereo,clean", "--episodes", "1"]) == 2
+    assert main(["--sensors", "stereo", "clean", "--episodes", "1"]) == 2
     assert "first sensor must be clean" in capsys.readouterr().err

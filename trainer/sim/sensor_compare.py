@@ -26,7 +26,7 @@ from trainer.sim.env import EnvConfig, GraspEnv  # noqa: E402
 from trainer.sim.rollout import expert_scenes, observe  # noqa: E402
 from trainer.sim.sensors import SensorError, make_sensor  # noqa: E402
 
-DEFAULT_SENSORS = "clean,randnoise,ddg_nograft:steps=5,ddg:steps=5,stereo"
+DEFAULT_SENSORS = ("clean", "randnoise", "ddg_nograft:steps=5", "ddg:steps=5", "stereo")
 
 
 def capture(kinds: tuple[str, ...], specs: list[str], episodes: int, steps: tuple[int, ...], seed: int
@@ -80,8 +80,9 @@ def picture(frames: list[dict[str, np.ndarray]], out: Path, rows: int = 6) -> No
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m trainer.sim.sensor_compare", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--sensors", default=DEFAULT_SENSORS, help="comma-separated sensor specs; the first must "
-                   "be clean (the reference) (default %(default)s)")
+    p.add_argument("--sensors", nargs="+", default=list(DEFAULT_SENSORS),
+                   help="sensor specs, space-separated (a DDG spec may hold commas: "
+                   "ddg:model=DIR,steps=5); the first must be clean, the reference (default: %(default)s)")
     p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds")
     p.add_argument("--episodes", type=int, default=6)
     p.add_argument("--steps", type=int, nargs="+", default=[0, 60], help="env steps at which to capture")
@@ -89,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=Path("docs/sensor_compare.png"), help="PNG path")
     p.add_argument("--json", type=Path, help="write the statistics here")
     args = p.parse_args(argv)
-    specs = args.sensors.split(",")
+    specs = args.sensors
     try:
         if specs[0] != "clean":
             raise ValueError(f"the first sensor must be clean (the reference), got {specs[0]!r}")
