@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 import torch
 
 from trainer.ddg.bank import save_bank
@@ -57,3 +58,43 @@ def test_fit_checkpoints_resumes_and_writes_a_model_dir(tmp_path):
     assert {p.name for p in out.iterdir()} >= {"config.json", "unet.safetensors", "unet.onnx", "loss.png",
                                                "frames.txt"}
     assert (out / "frames.txt").read_text().split() == ["f0", "f1", "f2", "f3"]
+
+
+def _far_scene() -> np.ndarray:
+    """A floor receding from 1 m (bottom row) to 5 m (top row), with holes along its far end."""
+    depth = np.rint(np.linspace(5000, 1000, 96))[:, None].repeat(128, axis=1).astype(np.uint16)
+    depth[:10, ::3] = 0
+    return depth
+
+
+def test_far_m_lets_the_prior_and_target_see_past_the_policy_range(tmp_path):
+    from trainer.ddg.bank import BankConfig, bank_spec, build_bank, training_arrays
+    from trainer.ddg.data import RealFrame
+    from trainer.ddg.model import load_config
+
+    frames = [RealFrame(f"f{i}", _far_scene(), "d4xx", "s", i) for i in range(2)]  # a crop is the whole frame
+    beyond = slice(12, 40)  # rows at 3.3-4.5 m
+    default, wide = (build_bank(frames, BankConfig(crops=2, far_m=far, depth_jitter=(1.0, 1.0)))
+                     for far in (1.5, 6.0))
+    assert bank_spec(default).far_m == 1.5 and bank_spec(wide).far_m == 6.0
+    c_default, c_wide = (training_arrays(b)[1] for b in (default, wide))
+    assert np.ptp(c_default[:, beyond], axis=1).max() == 0  # flattened: the far floor is one value
+    assert np.ptp(c_wide[:, beyond], axis=1).min() > 0.1  # the far floor keeps its slope
+    bank = tmp_path / "wide.npz"
+    save_bank(wide, bank)
+    out = fit(FitConfig(steps=1, bank=(str(bank),), far_m=6.0, run=str(tmp_path / "run"),
+                        out=str(tmp_path / "model"), batch=2, patch=(32, 32), channels=(8, 8, 16), threads=1))
+    assert load_config(out)["depth_spec"].far_m == 6.0  # generation uses the range the model learnt on
+
+
+def test_banks_of_two_depth_ranges_are_not_mixed(tmp_path):
+    from trainer.ddg.bank import concat_banks
+
+    narrow, wide = _tiny_bank(), {**_tiny_bank(), "far_m": np.float64(6.0)}
+    assert concat_banks([narrow, narrow])["far_m"] == 1.5
+    with pytest.raises(ValueError, match="different depth ranges"):
+        concat_banks([narrow, wide])
+    save_bank(wide, tmp_path / "wide.npz")
+    with pytest.raises(ValueError, match="far_m 6.0"):
+        fit(FitConfig(steps=1, bank=(str(tmp_path / "wide.npz"),), run=str(tmp_path / "r"),
+                      out=str(tmp_path / "m"), batch=2, patch=(32, 32), channels=(8, 8, 16), threads=1))

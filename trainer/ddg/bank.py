@@ -11,13 +11,13 @@ another machine without the raw data.
 from __future__ import annotations
 
 from collections import defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from runtime.preprocess import crop_resize
+from runtime.preprocess import DepthSpec, crop_resize
 
 from .data import POLICY_SPEC, RealFrame, crop_spec
 from .graft import encode
@@ -33,6 +33,8 @@ class BankConfig:
     depth_jitter: tuple[float, float] = (0.85, 1.8)
     """Multiplicative depth scale jitter, log-uniform."""
     seed: int = 0
+    far_m: float = POLICY_SPEC.far_m
+    """Far end of the depth range the prior and the target see (m); see ``FitConfig.far_m``."""
 
 
 def fused_frames(frames: list[RealFrame]) -> dict[str, np.ndarray]:
@@ -50,10 +52,10 @@ def fused_frames(frames: list[RealFrame]) -> dict[str, np.ndarray]:
 
 def build_bank(frames: list[RealFrame], cfg: BankConfig = BankConfig()) -> dict[str, np.ndarray]:
     """{"depth_mm": uint16 [N, H, W], "c": float16 [N, H, W], "scale": float32 [N, 2] (lo, span),
-    "frame": int [N], "names": str [F]}."""
+    "frame": int [N], "names": str [F], "far_m": float (the range's far end)}."""
     rng = np.random.default_rng(cfg.seed)
     fused = fused_frames(frames)
-    prior = DepthPrior(POLICY_SPEC)
+    prior = DepthPrior(replace(POLICY_SPEC, far_m=cfg.far_m))
     crops, c, scales, idx = [], [], [], []
     for i, f in enumerate(tqdm(frames, desc="crop bank", leave=False)):
         for _ in range(cfg.crops):
@@ -71,25 +73,34 @@ def build_bank(frames: list[RealFrame], cfg: BankConfig = BankConfig()) -> dict[
             idx.append(i)
     return {"depth_mm": np.stack(crops), "c": np.stack(c), "scale": np.array(scales, np.float32),
             "frame": np.array(idx),
-            "names": np.array([f.name for f in frames])}
+            "names": np.array([f.name for f in frames]), "far_m": np.float64(cfg.far_m)}
+
+
+def bank_spec(bank: dict[str, np.ndarray]) -> DepthSpec:
+    """The DepthSpec the bank's prior and targets were made with (older banks: the policy's)."""
+    return replace(POLICY_SPEC, far_m=float(bank.get("far_m", POLICY_SPEC.far_m)))
 
 
 def training_arrays(bank: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """(x0, c) float32 [N, H, W] on the generator's scale."""
     if "scale" not in bank:
         raise ValueError("crop bank has no 'scale' array (built before the relative target); rebuild it")
-    x0 = np.stack([encode(d, s, POLICY_SPEC) for d, s in zip(bank["depth_mm"], bank["scale"], strict=True)])
+    spec = bank_spec(bank)
+    x0 = np.stack([encode(d, s, spec) for d, s in zip(bank["depth_mm"], bank["scale"], strict=True)])
     return x0, bank["c"].astype(np.float32)
 
 
 def concat_banks(banks: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     """One bank from several (e.g. D4xx crops + other-sensor crops), frame indices kept distinct."""
+    far = {bank_spec(b).far_m for b in banks}
+    if len(far) > 1:
+        raise ValueError(f"crop banks made with different depth ranges (far_m {sorted(far)}) cannot be mixed")
     offsets = np.cumsum([0] + [len(b["names"]) for b in banks[:-1]])
     return {"depth_mm": np.concatenate([b["depth_mm"] for b in banks]),
             "c": np.concatenate([b["c"] for b in banks]),
             "scale": np.concatenate([b["scale"] for b in banks]),
             "frame": np.concatenate([b["frame"] + o for b, o in zip(banks, offsets, strict=True)]),
-            "names": np.concatenate([b["names"] for b in banks])}
+            "names": np.concatenate([b["names"] for b in banks]), "far_m": np.float64(far.pop())}
 
 
 def save_bank(bank: dict[str, np.ndarray], path: Path) -> None:

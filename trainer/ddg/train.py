@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from .bank import BankConfig, build_bank, concat_banks, load_bank, save_bank, training_arrays
+from .bank import BankConfig, bank_spec, build_bank, concat_banks, load_bank, save_bank, training_arrays
 from .data import POLICY_SPEC, load_real_dir, split
 from .graft import HOLE_THRESHOLD
 from .model import UNetConfig, build_unet, ddpm_scheduler, save_model
@@ -61,6 +61,11 @@ class FitConfig:
     """U-Net widths per level."""
     prediction: str = UNetConfig.prediction
     """What the U-Net predicts: v_prediction or epsilon (see trainer/ddg/model.py)."""
+    far_m: float = POLICY_SPEC.far_m
+    """Far end (m) of the depth range the prior and the target see; recorded in the model, whose generation
+    then uses it too. The policy's own 1.5 m flattens everything beyond it, so a loss that grows with range
+    past it (a stereo camera's far floor) cannot be learnt; a larger value can. The student still clips at
+    1.5 m."""
 
 
 def fit(cfg: FitConfig) -> Path:
@@ -95,7 +100,7 @@ def fit(cfg: FitConfig) -> Path:
     minutes = (time.monotonic() - t0) / 60
     extra = {"hole_threshold": HOLE_THRESHOLD, "train": {**asdict(cfg), "steps_done": len(losses),
              "train_minutes": round(minutes, 2), "n_crops": int(len(bank["c"]))}, "frames": names}
-    save_model(out, ema.cpu(), ucfg, POLICY_SPEC, extra)
+    save_model(out, ema.cpu(), ucfg, bank_spec(bank), extra)
     plot_losses(losses, out / "loss.png")
     (out / "frames.txt").write_text("\n".join(names) + "\n")
     return out
@@ -159,13 +164,16 @@ def _bank(cfg: FitConfig, run: Path) -> tuple[dict[str, np.ndarray], list[str]]:
     if cfg.bank:
         bank = concat_banks([load_bank(Path(b)) for b in cfg.bank])
     else:
-        cached = run / f"bank_{cfg.sensors}_{cfg.crops}_{cfg.seed}.npz"
+        far = "" if cfg.far_m == POLICY_SPEC.far_m else f"_far{cfg.far_m:g}"
+        cached = run / f"bank_{cfg.sensors}_{cfg.crops}_{cfg.seed}{far}.npz"
         if cached.exists():
             bank = load_bank(cached)
         else:
             train, _ = split(load_real_dir(cfg.real, cfg.sensors))
-            bank = build_bank(train, BankConfig(crops=cfg.crops, seed=cfg.seed))
+            bank = build_bank(train, BankConfig(crops=cfg.crops, seed=cfg.seed, far_m=cfg.far_m))
             save_bank(bank, cached)
+    if bank_spec(bank).far_m != cfg.far_m:
+        raise ValueError(f"--far-m {cfg.far_m} but the crop bank was made with far_m {bank_spec(bank).far_m}")
     return bank, [str(n) for n in bank["names"]]
 
 
