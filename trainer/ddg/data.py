@@ -114,11 +114,9 @@ def policy_crop(depth_mm: np.ndarray, rng: np.random.Generator | None = None, sc
     given, else centred when ``rng`` is None, else at random. Returns (uint16 crop, its DepthSpec,
     (top, left))."""
     s = crop_spec(*depth_mm.shape, scale=scale, spec=spec)
-    if window is not None:
-        window = (int(window[0]), int(window[1]))
-    elif rng is None:
+    if window is None and rng is None:
         window = s.centred_window()
-    else:
+    elif window is None:
         window = (int(rng.integers(0, s.stream_height - s.crop_height + 1)),
                   int(rng.integers(0, s.stream_width - s.crop_width + 1)))
     return crop_resize(depth_mm, s, window), s, window

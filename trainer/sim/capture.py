@@ -56,7 +56,9 @@ def capture(sensor_spec: str, kinds: tuple[str, ...], episodes: int, steps: tupl
     finally:
         env.close()
     manifest = {"dataset": f"simulated captures ({sensor_spec})", "format": "as ../shared/data/real_depth",
-                "command": "python -m trainer.sim.capture " + " ".join(sys.argv[1:]),
+                "made_by": {"command": "python -m trainer.sim.capture", "sensor": sensor_spec,
+                            "objects": list(kinds), "seeds": [seed, seed + episodes - 1],
+                            "steps": list(steps)},
                 "n_frames": len(entries), "frames": entries}
     (out / "MANIFEST.json").write_text(json.dumps(manifest, indent=1) + "\n")
     return len(entries)
