@@ -9,7 +9,8 @@ import pytest
 
 from runtime.preprocess import DepthSpec, crop_resize
 from trainer.ddg.bank import fused_frames
-from trainer.ddg.data import load_real_dir, policy_crop
+from trainer.ddg.data import load_real_dir
+from trainer.ddg.metrics import _crops
 from trainer.sim.capture import CaptureError, capture, main
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import expert_scenes
@@ -40,9 +41,9 @@ def test_frames_keep_their_episode_policy_window_and_are_judged_there(tmp_path):
     finally:
         env.close()
     assert frame.window == tuple(window)
-    crop, _, used = policy_crop(frame.depth_mm, np.random.default_rng(0), window=frame.window)
-    assert used == tuple(window)
-    np.testing.assert_array_equal(crop, crop_resize(frame.depth_mm, DepthSpec(), window))
+    crops, _ = _crops([frame], np.zeros(3, int), np.random.default_rng(0))  # the metrics' reference crops
+    for crop in crops:
+        np.testing.assert_array_equal(crop, crop_resize(frame.depth_mm, DepthSpec(), window))
 
 
 def test_same_seed_same_frames(tmp_path):
