@@ -55,7 +55,7 @@ def build_bank(frames: list[RealFrame], cfg: BankConfig = BankConfig()) -> dict[
     "frame": int [N], "names": str [F], "far_m": float (the range's far end)}."""
     rng = np.random.default_rng(cfg.seed)
     fused = fused_frames(frames)
-    prior = DepthPrior(replace(POLICY_SPEC, far_m=cfg.far_m))
+    prior = DepthPrior(range_spec(cfg.far_m))
     crops, c, scales, idx = [], [], [], []
     for i, f in enumerate(tqdm(frames, desc="crop bank", leave=False)):
         for _ in range(cfg.crops):
@@ -76,9 +76,14 @@ def build_bank(frames: list[RealFrame], cfg: BankConfig = BankConfig()) -> dict[
             "names": np.array([f.name for f in frames]), "far_m": np.float64(cfg.far_m)}
 
 
+def range_spec(far_m: float) -> DepthSpec:
+    """The policy's DepthSpec with the generator's depth range ending at ``far_m``."""
+    return replace(POLICY_SPEC, far_m=far_m)
+
+
 def bank_spec(bank: dict[str, np.ndarray]) -> DepthSpec:
     """The DepthSpec the bank's prior and targets were made with (older banks: the policy's)."""
-    return replace(POLICY_SPEC, far_m=float(bank.get("far_m", POLICY_SPEC.far_m)))
+    return range_spec(float(bank.get("far_m", POLICY_SPEC.far_m)))
 
 
 def training_arrays(bank: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
