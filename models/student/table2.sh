@@ -2,12 +2,15 @@
 # The paper's Table II analogue (issue 7): students trained on four depth sources with one budget, each run
 # under the exact (clean) and the active-stereo (stereo) sensor on seen and unseen kinds.
 #   models/student/table2.sh train      the students (after train.sh steps 1-3: demos, GT student, DDG depth)
-#   models/student/table2.sh evaluate   every cell -> runs/table2/*.json (skips cells already written)
+#   models/student/table2.sh evaluate [NAME...]  every cell (of the students named) -> runs/table2/*.json
+#                                       (skips cells already written)
 #   models/student/table2.sh table      docs/table2.json + the markdown table of the README
-#   models/student/table2.sh key        the gt and shipped rows under stereo at 180 episodes (30 per kind)
+#   models/student/table2.sh key [NAME...]  rows under stereo at 180 episodes (30 per kind; default gt, shipped)
 #   models/student/table2.sh reactive   a GT student on demos of the phase-free (reactive) expert, and its cells
 #   models/student/table2.sh dagger     the hand-target GT student, recovery demos where it drives, the students
 #                                       fine-tuned on them (and the same budget without them), and their cells
+#   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
+#                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
 # cells are kept in runs/table2_v1 and docs/table2_v1.json.
 # Budget: the GT student of train.sh step 2, fine-tuned 8000 steps at lr 1e-4 on each source's depth of the
@@ -37,36 +40,47 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "ddg_nograft runs/student/ddg_nograft_ft_8k.onnx none"
           "shipped runs/student/ddg2_ft_20k.onnx none"  # models/student.onnx: the ddg student at 20000 steps
           "gt_hand runs/student/gt_hand_more_8k.onnx none"  # `dagger` step 3, without the recovery demos
-          "ddg_hand runs/student/ddg_hand_8k.onnx none")  # `dagger` step 4
+          "ddg_hand runs/student/ddg_hand_8k.onnx none"  # `dagger` step 4
+          "ddg_b runs/student/ddg_b_ft_8k.onnx none")  # `ddg_b`: DDG (b), trained on the stereo sensor's frames
 
 cell() {  # name model restore sensor objects episodes [folder]
     local json=${7:-runs/table2}/$1_$4_$5_$6.json
     [ -f "$json" ] && return 0
     [ -f "$2" ] || { echo "skipped $json: $2 not trained yet"; return 0; }
     python -m trainer evaluate --policy "student:$2" --restore "$3" --sensor "$4" --objects "$5" \
-        --episodes "$6" --workers 2 --json "$json" > "${json%.json}.log" 2>&1
+        --episodes "$6" --workers "${WORKERS:-2}" --json "$json" > "${json%.json}.log" 2>&1
 }
 
-evaluate() {
+chosen() {  # the STUDENTS entries named in $NAMES (all of them if it is empty)
+    local student
+    for student in "${STUDENTS[@]}"; do
+        [[ -z "${NAMES:-}" || " $NAMES " == *" ${student%% *} "* ]] && echo "$student"
+    done
+    return 0
+}
+
+evaluate() {  # [name...]
     mkdir -p runs/table2
+    local NAMES="$*"
     for sensor in clean stereo; do
         episodes=$([ "$sensor" = clean ] && echo "$CLEAN_EPISODES" || echo "$STEREO_EPISODES")
         for objects in seen unseen; do
-            for student in "${STUDENTS[@]}"; do
+            while read -r student; do
                 set -- $student
                 cell "$1" "$2" "$3" "$sensor" "$objects" "$episodes"
-            done
+            done < <(chosen)
         done
     done
 }
 
-key() {
+key() {  # [name...]: default gt and shipped
     mkdir -p runs/table2/key
+    local NAMES="${*:-gt shipped}"
     for objects in seen unseen; do
-        for student in "${STUDENTS[0]}" "${STUDENTS[5]}"; do
+        while read -r student; do
             set -- $student
             cell "$1" "$2" "$3" stereo "$objects" 180 runs/table2/key
-        done
+        done < <(chosen)
     done
 }
 
@@ -79,6 +93,18 @@ reactive() {  # the recipe of train.sh step 2's first 16000 steps, on the reacti
     python -m export runs/student/reactive_gt_16k/ckpt.pt --ddim-steps 4 --out runs/student/reactive_gt_16k.onnx
     cell reactive_gt runs/student/reactive_gt_16k.onnx none clean seen 200
     cell reactive_gt runs/student/reactive_gt_16k.onnx none stereo seen "$STEREO_EPISODES"
+}
+
+ddg_b() {
+    # The same demos (a copy: a store holds one DDG's depth) through DDG (b) at DDIM 5, as train.sh step 3 did
+    # with DDG (a); 1 core each, so generation can run beside train.sh step 2 and the fine-tune beside cells.
+    [ -d runs/sim/demos_seen_ddg_b.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
+    python -m trainer ddg generate --demos runs/sim/demos_seen_ddg_b.zarr --model models/ddg_stereo --steps 5 \
+        --threads "${DDG_THREADS:-1}" --batch 16
+    python -m trainer student fit --demos runs/sim/demos_seen_ddg_b.zarr --depth-source ddg \
+        --out runs/student/ddg_b_ft_8k --init runs/student/gt_1000_obj1/ckpt.pt --object-loss 1 --steps 8000 \
+        --batch 32 --lr 1e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 1 --ckpt-every 1000
+    python -m export runs/student/ddg_b_ft_8k/ckpt.pt --ddim-steps 4 --out runs/student/ddg_b_ft_8k.onnx
 }
 
 fit() {  # out demos depth-source threads steps [more fit flags]: the GT student's recipe (table2 fine-tunes: --init)
@@ -121,4 +147,4 @@ table() {  # rows in the order of STUDENTS, then the reactive one; cells not mea
     python -m trainer table "${files[@]}" --out docs/table2.json
 }
 
-"${1:?usage: table2.sh train|evaluate|table|key|reactive}"
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b [NAME...]}"
