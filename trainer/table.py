@@ -2,7 +2,8 @@
 
 Rows are policies (the policy file's stem, "+ inpaint" when the runtime restored holes), columns are
 sensor x object group; a cell is the success rate with its 95 % Wilson interval and episode count.
-Prints markdown; ``--out`` also writes the table as JSON with every cell's source file.
+Prints markdown; ``--out`` also writes the table as JSON with every cell's source file, and ``--base`` builds
+on such a JSON (new results replace its cells, the rest stay).
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ from pathlib import Path
 
 from hil_sim.objects import GROUPS
 from trainer.evaluate import wilson_interval
+
+CELL_KEYS = ("success_rate", "successes", "episodes", "ci95", "source")
 
 
 class TableError(ValueError):
@@ -37,18 +40,31 @@ def load(path: Path) -> dict:
             "ci95": [round(b, 4) for b in wilson_interval(successes, n)], "source": str(path)}
 
 
-def build(paths: list[Path]) -> dict:
-    cells = [load(p) for p in paths]
-    rows = list(dict.fromkeys(c["row"] for c in cells))
-    columns = sorted(dict.fromkeys(c["column"] for c in cells), key=lambda c: (c.split()[0] != "clean", c))
-    table: dict[str, dict[str, dict]] = {r: {} for r in rows}
-    for c in cells:
-        if c["column"] in table[c["row"]]:
+def build(paths: list[Path], base: dict | None = None) -> dict:
+    """The table of ``paths``' results on top of ``base`` (an earlier table's JSON): its cells are kept
+    unless a result measures the same cell again, which replaces it."""
+    rows = (base or {}).get("rows", {})
+    table: dict[str, dict[str, dict]] = {row: dict(cells) for row, cells in rows.items()}
+    measured: set[tuple[str, str]] = set()
+    for c in (load(p) for p in paths):
+        if (c["row"], c["column"]) in measured:
             raise TableError(f"two results for {c['row']} / {c['column']}: "
                              f"{table[c['row']][c['column']]['source']} and {c['source']}")
-        table[c["row"]][c["column"]] = {k: c[k] for k in ("success_rate", "successes", "episodes", "ci95",
-                                                          "source")}
+        measured.add((c["row"], c["column"]))
+        table.setdefault(c["row"], {})[c["column"]] = {k: c[k] for k in CELL_KEYS}
+    columns = sorted({column for cells in table.values() for column in cells},
+                     key=lambda c: (c.split()[0] != "clean", c))
     return {"columns": columns, "rows": table}
+
+
+def load_base(path: Path) -> dict:
+    try:
+        base = json.loads(path.read_text())
+        if not isinstance(base.get("rows"), dict):
+            raise ValueError("no rows")
+    except (OSError, ValueError, AttributeError) as exc:
+        raise TableError(f"--base {path}: not a table written by --out ({exc})") from None
+    return base
 
 
 def markdown(doc: dict) -> str:
@@ -71,9 +87,11 @@ def main(argv: list[str] | None = None) -> int:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("results", nargs="+", type=Path, help="JSON files written by trainer evaluate --json")
     p.add_argument("--out", type=Path, help="also write the table as JSON here")
+    p.add_argument("--base", type=Path, help="an earlier --out table: its cells stay unless a result "
+                   "measures the same cell again (result files of earlier sessions need not be at hand)")
     args = p.parse_args(argv)
     try:
-        doc = build(args.results)
+        doc = build(args.results, args.base and load_base(args.base))
     except TableError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -137,14 +137,14 @@ dagger() {
     fit ddg_hand_8k runs/sim/demos_seen.zarr ddg 1 8000 --lr 1e-4 --init runs/student/gt_hand_more_8k/ckpt.pt
 }
 
-table() {  # rows in the order of STUDENTS, then the reactive one; cells not measured yet are left out
+table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order of STUDENTS, then the reactive one)
     local files=()
     shopt -s nullglob
     for student in "${STUDENTS[@]}" "reactive_gt"; do
         set -- $student
         files+=(runs/table2/"$1"_{clean,stereo}_*.json)
     done
-    python -m trainer table "${files[@]}" --out docs/table2.json
+    python -m trainer table "${files[@]}" --base docs/table2.json --out docs/table2.json
 }
 
 "${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b [NAME...]}"

@@ -35,3 +35,20 @@ def test_two_results_for_one_cell_and_foreign_json_are_named(tmp_path, capsys):
     bad.write_text(json.dumps({"hello": 1}))
     assert main([str(bad)]) == 2
     assert "bad.json: not a trainer evaluate result" in capsys.readouterr().err
+
+
+def test_a_base_table_keeps_its_cells_and_a_new_result_replaces_the_same_cell(tmp_path):
+    old = build([_result(tmp_path, "a", rate=0.5), _result(tmp_path, "b", sensor="stereo", rate=0.1)])
+    old["rows"]["older"] = {"clean unseen": dict(old["rows"]["a"]["clean seen"], source="gone.json")}
+    base = tmp_path / "table.json"
+    base.write_text(json.dumps(old))
+    out = tmp_path / "merged.json"
+    assert main([str(_result(tmp_path, "c", rate=1.0)), "--base", str(base), "--out", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert list(doc["rows"]) == ["a", "older"]
+    assert doc["rows"]["a"]["clean seen"]["successes"] == 10  # replaced by c.json
+    assert doc["rows"]["a"]["stereo seen"]["successes"] == 1  # kept
+    assert doc["rows"]["older"]["clean unseen"]["source"] == "gone.json"
+    assert doc["columns"] == ["clean seen", "clean unseen", "stereo seen"]
+    base.write_text(json.dumps({"hello": 1}))
+    assert main([str(_result(tmp_path, "c")), "--base", str(base)]) == 2
