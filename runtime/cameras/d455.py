@@ -36,15 +36,20 @@ class D455Camera:
         self.playback = source.endswith(".bag")
         self.name = f"d455:{source}" if source else "d455"
         self._pipe = rs.pipeline()
+        cfg = self._config(spec, source, fps)
+        # Device and stream are checked on the resolved configuration, before anything streams: stopping a
+        # playback right after its start races librealsense's reader thread (heap corruption under load).
         try:
-            profile = self._pipe.start(self._config(spec, source, fps))
-        except RuntimeError as exc:
-            raise CameraError(f"camera {self.name}: cannot start the depth stream ({exc})") from None
-        try:
-            self._setup(profile, spec)
+            self._check(cfg.resolve(rs.pipeline_wrapper(self._pipe)), spec)
+            profile = self._pipe.start(cfg)
         except CameraError:
-            self._pipe.stop()
             raise
+        except RuntimeError as exc:  # librealsense's own errors: no device, unreadable recording
+            raise CameraError(f"camera {self.name}: cannot start the depth stream ({exc})") from None
+        self._device = profile.get_device()
+        if self.playback:
+            self._device.as_playback().set_real_time(False)
+        self.depth_scale = float(self._device.first_depth_sensor().get_depth_scale())
         self._offset: float | None = None
 
     def _config(self, spec: DepthSpec, source: str, fps: int) -> rs.config:
@@ -53,18 +58,16 @@ class D455Camera:
             if not Path(source).is_file():
                 raise CameraError(f"camera {self.name}: no such recording")
             cfg.enable_device_from_file(source, repeat_playback=False)
-            cfg.enable_stream(rs.stream.depth)  # whatever was recorded; its size is checked after start
+            cfg.enable_stream(rs.stream.depth)  # whatever was recorded; its size is checked before start
         else:
             if source:
                 cfg.enable_device(source)
             cfg.enable_stream(rs.stream.depth, spec.stream_width, spec.stream_height, rs.format.z16, fps)
         return cfg
 
-    def _setup(self, profile: rs.pipeline_profile, spec: DepthSpec) -> None:
-        device = profile.get_device()
-        model = device.get_info(rs.camera_info.name)
+    def _check(self, profile: rs.pipeline_profile, spec: DepthSpec) -> None:
+        model = profile.get_device().get_info(rs.camera_info.name)
         if self.playback:
-            device.as_playback().set_real_time(False)
             if not model.startswith(D400_PREFIX):
                 raise CameraError(f"camera {self.name}: recording is from {model!r}, not a D400 camera")
             if "D455" not in model:
@@ -75,9 +78,7 @@ class D455Camera:
         stream = profile.get_stream(rs.stream.depth).as_video_stream_profile()
         self.stream_size = (stream.width(), stream.height())
         check_stream(self.name, *self.stream_size, spec)
-        self.depth_scale = float(device.first_depth_sensor().get_depth_scale())
         self.period_s = 1.0 / stream.fps()
-        self._device = device
 
     def poll(self, timeout_s: float) -> Frame | None:
         frames = None if self.playback else self._drain()
