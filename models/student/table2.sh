@@ -5,7 +5,8 @@
 #   models/student/table2.sh evaluate [NAME...]  every cell (of the students named) -> runs/table2/*.json
 #                                       (skips cells already written)
 #   models/student/table2.sh table      docs/table2.json + the markdown table of the README
-#   models/student/table2.sh key [NAME...]  rows under stereo at 180 episodes (30 per kind; default gt, shipped)
+#   models/student/table2.sh key [NAME...]  rows at 180 episodes per cell (30 per kind, as issue 7 asks; default
+#                                       gt, ddg, ddg_b) -> runs/table2/key; `table` prefers these cells
 #   models/student/table2.sh reactive   a GT student on demos of the phase-free (reactive) expert, and its cells
 #   models/student/table2.sh dagger     the hand-target GT student, recovery demos where it drives, the students
 #                                       fine-tuned on them (and the same budget without them), and their cells
@@ -73,14 +74,16 @@ evaluate() {  # [name...]
     done
 }
 
-key() {  # [name...]: default gt and shipped
+key() {  # [name...]: default gt, ddg and ddg_b (the paper's shape); stereo cells first, they are the point
     mkdir -p runs/table2/key
-    local NAMES="${*:-gt shipped}"
-    for objects in seen unseen; do
-        while read -r student; do
-            set -- $student
-            cell "$1" "$2" "$3" stereo "$objects" 180 runs/table2/key
-        done < <(chosen)
+    local NAMES="${*:-gt ddg ddg_b}"
+    for sensor in stereo clean; do
+        for objects in seen unseen; do
+            while read -r student; do
+                set -- $student
+                cell "$1" "$2" "$3" "$sensor" "$objects" 180 runs/table2/key
+            done < <(chosen)
+        done
     done
 }
 
@@ -137,12 +140,16 @@ dagger() {
     fit ddg_hand_8k runs/sim/demos_seen.zarr ddg 1 8000 --lr 1e-4 --init runs/student/gt_hand_more_8k/ckpt.pt
 }
 
-table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order of STUDENTS, then the reactive one)
-    local files=()
+table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order of STUDENTS, then the reactive one);
+           # a cell measured by `key` (180 episodes) replaces the smaller one
+    local files=() key
     shopt -s nullglob
     for student in "${STUDENTS[@]}" "reactive_gt"; do
         set -- $student
-        files+=(runs/table2/"$1"_{clean,stereo}_*.json)
+        for small in runs/table2/"$1"_{clean,stereo}_*.json; do
+            key=runs/table2/key/$(basename "${small%_*}")_180.json
+            files+=("$([ -f "$key" ] && echo "$key" || echo "$small")")
+        done
     done
     python -m trainer table "${files[@]}" --base docs/table2.json --out docs/table2.json
 }
