@@ -16,7 +16,7 @@ import pytest
 from trainer.collect import main as collect_main
 from trainer.dataset import DemoStore
 from trainer.evaluate import main as evaluate_main
-from trainer.evaluate import wilson_interval
+from trainer.evaluate import median_interval, wilson_interval
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -59,6 +59,8 @@ def test_evaluate_writes_the_json_contract(tmp_path, capsys) -> None:
     closes = result["first_close"]
     assert closes["episodes"] == 2 and 20 < closes["median_step"] < 100
     assert closes["horizontal_cm_median"] < 1.0 and -5.0 < closes["offset_cm_mean"][2] < -1.0
+    lo, hi = closes["horizontal_cm_median_ci95"]
+    assert lo <= closes["horizontal_cm_median"] <= hi
     out = capsys.readouterr().out
     assert "first close in 2 episodes" in out and out.rstrip().splitlines()[-1].startswith("ALL")
 
@@ -69,6 +71,14 @@ def test_wilson_interval_matches_scipy(successes, n) -> None:
 
     expected = binomtest(successes, n).proportion_ci(method="wilson")
     np.testing.assert_allclose(wilson_interval(successes, n), (expected.low, expected.high), atol=1e-4)
+
+
+def test_median_interval_holds_the_median_narrows_with_more_episodes_and_is_seeded() -> None:
+    distances = np.random.default_rng(3).exponential(10.0, 400)
+    small, large = median_interval(distances[:40]), median_interval(distances)
+    assert small[0] <= np.median(distances[:40]) <= small[1] and large[0] <= np.median(distances) <= large[1]
+    assert large[1] - large[0] < small[1] - small[0]
+    assert median_interval(distances) == large and median_interval(distances[:1]) is None
 
 
 @pytest.mark.parametrize("argv,needle", [(["--objects", "dragonfruit"], "unknown object kind 'dragonfruit'"),
