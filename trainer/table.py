@@ -1,7 +1,8 @@
 """``python -m trainer table RESULT.json ...``: many ``trainer evaluate`` results as one comparison table.
 
 Rows are policies (the policy file's stem, "+ inpaint" when the runtime restored holes), columns are
-sensor x object group; a cell is the success rate with its 95 % Wilson interval and episode count.
+sensor x object group; a cell is the success rate with its 95 % Wilson interval and episode count, and where
+the result has one, the median horizontal hand-object distance at the first gripper close with its interval.
 Prints markdown; ``--out`` also writes the table as JSON with every cell's source file, and ``--base`` builds
 on such a JSON (new results replace its cells, the rest stay).
 """
@@ -16,7 +17,7 @@ from pathlib import Path
 from hil_sim.objects import GROUPS
 from trainer.evaluate import wilson_interval
 
-CELL_KEYS = ("success_rate", "successes", "episodes", "ci95", "source")
+CELL_KEYS = ("success_rate", "successes", "episodes", "ci95", "closes_cm", "closes_cm_ci95", "source")
 
 
 class TableError(ValueError):
@@ -29,6 +30,7 @@ def load(path: Path) -> dict:
         successes = round(result["success_rate"] * result["episodes"])
         row = Path(result["policy"].partition(":")[2] or result["policy"]).stem
         restore = result.get("restore", "none")
+        closes = result.get("first_close", {})
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise TableError(f"{path}: not a trainer evaluate result ({exc})") from None
     objects = next((name for name, kinds in GROUPS.items() if list(kinds) == result["objects"]),
@@ -37,7 +39,10 @@ def load(path: Path) -> dict:
     return {"row": row + ("" if restore == "none" else f" + {restore}"),
             "column": f"{result['sensor']} {objects}", "success_rate": result["success_rate"],
             "successes": successes, "episodes": n,
-            "ci95": [round(b, 4) for b in wilson_interval(successes, n)], "source": str(path)}
+            "ci95": [round(b, 4) for b in wilson_interval(successes, n)],
+            "closes_cm": closes.get("horizontal_cm_median"),
+            "closes_cm_ci95": closes.get("horizontal_cm_median_ci95"),
+            "source": str(path)}
 
 
 def build(paths: list[Path], base: dict | None = None) -> dict:
@@ -79,7 +84,12 @@ def _cell(cell: dict | None) -> str:
     if cell is None:
         return "-"
     lo, hi = cell["ci95"]
-    return f"{cell['success_rate']:.1%} [{lo:.0%}, {hi:.0%}] n={cell['episodes']}"
+    text = f"{cell['success_rate']:.1%} [{lo:.0%}, {hi:.0%}] n={cell['episodes']}"
+    if cell.get("closes_cm") is not None:
+        text += f", closes {cell['closes_cm']:.1f} cm"
+        if cell.get("closes_cm_ci95"):
+            text += " [{:.1f}, {:.1f}]".format(*cell["closes_cm_ci95"])
+    return text
 
 
 def main(argv: list[str] | None = None) -> int:

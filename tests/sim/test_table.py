@@ -28,6 +28,19 @@ def test_cells_land_in_their_row_and_column_with_a_wilson_interval(tmp_path):
     assert "| a + inpaint | 100.0% [72%, 100%] n=10 | - |" in markdown(doc)
 
 
+def test_a_cell_carries_the_closing_distance_when_the_result_has_one(tmp_path):
+    path = _result(tmp_path, "d", sensor="stereo")
+    result = json.loads(path.read_text())
+    result["first_close"] = {"episodes": 7, "horizontal_cm_median": 18.87,
+                             "horizontal_cm_median_ci95": [16.23, 20.32]}
+    path.write_text(json.dumps(result))
+    doc = build([path, _result(tmp_path, "e")])
+    assert doc["rows"]["a"]["stereo seen"]["closes_cm_ci95"] == [16.23, 20.32]
+    # e.json has no first_close: its cell is the success alone.
+    row = "| a | 50.0% [24%, 76%] n=10 | 50.0% [24%, 76%] n=10, closes 18.9 cm [16.2, 20.3] |"
+    assert row in markdown(doc)
+
+
 def test_two_results_for_one_cell_and_foreign_json_are_named(tmp_path, capsys):
     with pytest.raises(TableError, match="two results for a / clean seen"):
         build([_result(tmp_path, "x"), _result(tmp_path, "y")])
