@@ -148,7 +148,8 @@ table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order o
         set -- $student
         for small in runs/table2/"$1"_{clean,stereo}_*.json; do
             key=runs/table2/key/$(basename "${small%_*}")_180.json
-            files+=("$([ -f "$key" ] && echo "$key" || echo "$small")")
+            [ -f "$key" ] || key=$small
+            files+=("$key")
         done
     done
     python -m trainer table "${files[@]}" --base docs/table2.json --out docs/table2.json
