@@ -121,10 +121,11 @@ def table(result: dict) -> str:
     lo, hi = result["ci95"]
     closes = result["first_close"]
     if closes["episodes"]:
+        interval = closes["horizontal_cm_median_ci95"]
         rows.append(f"first close in {closes['episodes']} episodes, median step {closes['median_step']:.0f}: "
                     f"object - hand {closes['offset_cm_mean']} cm (std {closes['offset_cm_std']}), "
-                    f"{closes['horizontal_cm_median']} cm apart horizontally (median; 95 % CI "
-                    f"{closes['horizontal_cm_median_ci95']})")
+                    f"{closes['horizontal_cm_median']} cm apart horizontally (median"
+                    + (f"; 95 % CI {interval})" if interval else ")"))
     rows.append(f"{'ALL':<12} {result['success_rate']:>8.1%}  (95 % CI {lo:.1%}-{hi:.1%}; "
                 f"{result['episodes']} episodes, {result['policy']}, sensor {result['sensor']}, "
                 f"restore {result['restore']})")

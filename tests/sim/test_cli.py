@@ -15,8 +15,8 @@ import pytest
 
 from trainer.collect import main as collect_main
 from trainer.dataset import DemoStore
+from trainer.evaluate import first_close, median_interval, table, wilson_interval
 from trainer.evaluate import main as evaluate_main
-from trainer.evaluate import median_interval, wilson_interval
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -79,6 +79,18 @@ def test_median_interval_holds_the_median_narrows_with_more_episodes_and_is_seed
     assert small[0] <= np.median(distances[:40]) <= small[1] and large[0] <= np.median(distances) <= large[1]
     assert large[1] - large[0] < small[1] - small[0]
     assert median_interval(distances) == large and median_interval(distances[:1]) is None
+
+
+def test_the_table_gives_the_closing_interval_only_when_there_is_one() -> None:
+    def printed(offsets: list) -> str:
+        result = {"per_object": {"cube": 0.0}, "ci95": [0.0, 0.5], "success_rate": 0.0, "episodes": 4,
+                  "policy": "p", "sensor": "clean", "restore": "none",
+                  "first_close": first_close([(30, np.array(o)) for o in offsets])}
+        return table(result)
+
+    one, three = printed([[0.03, 0.04, 0.0]]), printed([[0.03, 0.04, 0], [0.0, 0.1, 0], [0.06, 0.08, 0]])
+    assert "5.0 cm apart horizontally (median)" in one and "None" not in one
+    assert "10.0 cm apart horizontally (median; 95 % CI [" in three
 
 
 @pytest.mark.parametrize("argv,needle", [(["--objects", "dragonfruit"], "unknown object kind 'dragonfruit'"),
