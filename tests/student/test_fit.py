@@ -73,9 +73,6 @@ def test_init_starts_a_new_run_from_another_students_weights(small_demos, tmp_pa
     assert fit_main([*fit_args(small_demos, tuned, 1), "--depth-source", "randnoise", "--init", str(gt)]) == 0
     run = checkpoint.load(tuned / "ckpt.pt")
     assert run.step == 1 and run.info.data["depth_source"] == "randnoise" and "init_sha256" in run.info.data
-    fine = tmp_path / "fine"  # a finer keypoint grid, same weights
-    assert fit_main([*fit_args(small_demos, fine, 1), "--last-stride", "1", "--init", str(gt)]) == 0
-    assert checkpoint.load(fine / "ckpt.pt").config.last_stride == 1
     with pytest.raises(FitError, match="--init"):
         fit_main([*fit_args(small_demos, tmp_path / "wide", 1), "--width", "16", "--init", str(gt)])
 

@@ -38,21 +38,12 @@ def test_spatial_softmax_reads_where_the_peak_is():
     torch.testing.assert_close(pool(fmap), torch.tensor([[1.0, -1.0], [-1.0, 1.0]]), atol=1e-4, rtol=0)
 
 
-def test_last_stride_one_doubles_the_keypoint_grid_with_the_same_weights():
-    coarse, fine = StudentPolicy(TINY), StudentPolicy(StudentConfig(**{**TINY.__dict__, "last_stride": 1}))
-    fine.load_state_dict(coarse.state_dict())  # same parameters: a stride-2 student can be fine-tuned at 1
-    depth = torch.rand(1, 3, 96, 128)
-    assert coarse.encoder.blocks(coarse.encoder.stem(depth)).shape[-2:] == (3, 4)
-    assert fine.encoder.blocks(fine.encoder.stem(depth)).shape[-2:] == (6, 8)
-
-
 @pytest.mark.parametrize("kwargs, match", [
     ({"width": 12}, "width"),
     ({"head_dims": (16, 20)}, "head_dims"),
     ({"action_horizon": 10, "head_dims": (16, 32, 64)}, "action_horizon"),
     ({"exec_horizon": 17}, "exec_horizon"),
     ({"keypoints": 0}, "keypoints"),
-    ({"last_stride": 4}, "last_stride"),
 ])
 def test_bad_config_is_refused(kwargs, match):
     with pytest.raises(StudentConfigError, match=match):

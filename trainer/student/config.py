@@ -19,9 +19,6 @@ class StudentConfig:
     """ResNet-18 base width: stage channels are width, 2w, 4w, 8w (64 = the standard ResNet-18)."""
     keypoints: int = 32
     """Learned keypoints of the encoder's spatial-softmax pooling (robomimic / diffusion_policy: 32)."""
-    last_stride: int = 2
-    """Stride of the ResNet's last stage: 2 as in ResNet-18 (the keypoints read a 3x4 grid at 96x128 input),
-    1 keeps stage 3's 6x8 grid for finer keypoints at ~1.6x the encoder's cost. Same weights either way."""
     obs_horizon: int = 3
     """Depth frames stacked as input channels, oldest first."""
     action_horizon: int = 16
@@ -52,8 +49,6 @@ class StudentConfig:
                                      f"2**{len(self.head_dims) - 1} for a {len(self.head_dims)}-level U-Net")
         if not (0 < self.exec_horizon <= self.action_horizon):
             raise StudentConfigError(f"exec_horizon {self.exec_horizon} must be in 1..{self.action_horizon}")
-        if self.last_stride not in (1, 2):
-            raise StudentConfigError(f"last_stride must be 1 or 2, got {self.last_stride}")
         for name in ("keypoints", "obs_horizon", "state_dim", "action_dim", "state_features", "step_features",
                      "train_timesteps"):
             if getattr(self, name) < 1:

@@ -65,7 +65,7 @@ class ResNet18(nn.Module):
     """ResNet-18 layout (stem + 4 stages of 2 basic blocks), trained from scratch: no weights to fetch,
     pooled by ``SpatialSoftmax`` instead of the classifier's global average."""
 
-    def __init__(self, in_channels: int, width: int, keypoints: int, last_stride: int = 2) -> None:
+    def __init__(self, in_channels: int, width: int, keypoints: int) -> None:
         super().__init__()
         self.stem = nn.Sequential(nn.Conv2d(in_channels, width, 7, 2, 3, bias=False),
                                   nn.GroupNorm(_groups(width), width), nn.ReLU(), nn.MaxPool2d(3, 2, 1))
@@ -73,8 +73,7 @@ class ResNet18(nn.Module):
         blocks = []
         for i, c in enumerate(chans):
             c_in = chans[max(i - 1, 0)]
-            stride = 1 if i == 0 else last_stride if i == len(chans) - 1 else 2
-            blocks += [BasicBlock(c_in, c, stride), BasicBlock(c, c, 1)]
+            blocks += [BasicBlock(c_in, c, 1 if i == 0 else 2), BasicBlock(c, c, 1)]
         self.blocks = nn.Sequential(*blocks)
         self.pool = SpatialSoftmax(chans[-1], keypoints)
         self.out_features = self.pool.out_features
@@ -162,7 +161,7 @@ class StudentPolicy(nn.Module):
         self.config = config
         self.state_norm = RangeNormaliser(config.state_dim)
         self.action_norm = RangeNormaliser(config.action_dim)
-        self.encoder = ResNet18(config.obs_horizon, config.width, config.keypoints, config.last_stride)
+        self.encoder = ResNet18(config.obs_horizon, config.width, config.keypoints)
         self.state_mlp = nn.Sequential(nn.Linear(config.state_dim, config.state_features), nn.ReLU(),
                                        nn.Linear(config.state_features, config.state_features))
         obs_dim = self.encoder.out_features + config.state_features

@@ -150,14 +150,10 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
 
 
 def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo) -> Checkpoint:
-    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights. The architecture may differ
-    where the weights do not (``last_stride``)."""
+    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights."""
     source = checkpoint.load(init)
-    try:
-        StudentPolicy(model_cfg).load_state_dict(source.ema)
-    except RuntimeError as e:
-        raise FitError(f"--init {init} is a {source.config}; its weights do not fit the requested "
-                       f"{model_cfg}: {e}") from e
+    if source.config != model_cfg:
+        raise FitError(f"--init {init} is a {source.config}, not the requested {model_cfg}")
     info = replace(info, data={**info.data, "init": str(init.resolve()),
                                "init_sha256": checkpoint.sha256(init)})
     return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in source.ema.items()},
