@@ -39,6 +39,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip depth rendering (throughput baseline; depth is then stored as zeros)")
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes")
+    p.add_argument("--action-noise", type=float, default=0.0,
+                   help="DART: std of Gaussian noise on the teacher's joint actions as executed (normalised "
+                        "units; actions span [-1, 1]); the stored actions are the teacher's own, so a "
+                        "student sees how to recover from the drift its own errors cause (0: off)")
     p.add_argument("--max-attempts", type=int, default=0,
                    help="give up after this many attempts in the store (0: 2 x N + 20)")
     return p
@@ -61,13 +65,15 @@ def collect(args: argparse.Namespace) -> dict:
     spec = DepthSpec()
     store = DemoStore.create(args.out, spec=spec, action_scale=config.action_scale,
                              control_rate_hz=config.control_rate_hz, rgb=args.rgb,
-                             attrs={"teacher": args.teacher, "seed": args.seed, "objects": list(kinds)})
+                             attrs={"teacher": args.teacher, "seed": args.seed, "objects": list(kinds),
+                                    "action_noise": args.action_noise})
     start_attempt = int(store.attrs["attempted"])
     limit = args.max_attempts or 2 * args.episodes + 20
     jobs = [Job(args.seed + i, kinds[i % len(kinds)]) for i in range(start_attempt, limit)]
     bar = tqdm(total=args.episodes, initial=store.n_episodes, desc="collect", unit="ep")
     t0, new = time.perf_counter(), 0
-    results = rollouts(config, args.teacher, jobs, workers=args.workers, record=True)
+    results = rollouts(config, args.teacher, jobs, workers=args.workers, record=True,
+                       action_noise=args.action_noise)
     try:
         for r in results if store.n_episodes < args.episodes else ():
             if r.success:
@@ -91,6 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.episodes < 1:
             raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+        if args.action_noise < 0:
+            raise ValueError(f"--action-noise must be >= 0, got {args.action_noise}")
         summary = collect(args)
     except (DatasetError, PolicyError, ObjectError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -37,6 +37,14 @@ def test_collect_writes_depth_demos_and_resumes(tmp_path) -> None:
     np.testing.assert_array_equal(store.episode(0)["depth"], first["depth"])
 
 
+def test_dart_demos_record_their_noise_and_a_negative_one_is_refused(tmp_path, capsys) -> None:
+    args = ["--episodes", "1", "--objects", "cube", "--workers", "1", "--no-depth"]
+    assert collect_main([*args, "--out", str(tmp_path / "dart.zarr"), "--action-noise", "0.3"]) == 0
+    assert DemoStore.open(tmp_path / "dart.zarr").attrs["action_noise"] == 0.3
+    assert collect_main([*args, "--out", str(tmp_path / "bad.zarr"), "--action-noise", "-1"]) == 2
+    assert "--action-noise must be >= 0" in capsys.readouterr().err
+
+
 def test_unwritable_output_is_one_error_line(tmp_path, capsys) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("x")

@@ -8,6 +8,7 @@ import pytest
 from hil_sim.world import TABLE_Z
 from trainer.policies import Observation, PolicyError, make_policy
 from trainer.sim.env import EnvConfig, GraspEnv
+from trainer.sim.rollout import Job, perturb, run_episode
 from trainer.teacher.scripted import Phase
 
 
@@ -74,6 +75,34 @@ def test_scripted_expert_grasps_and_lifts(env: GraspEnv, kind: str, seed: int, s
     assert expert.phase == Phase.LIFT and lifted_bonus > 0
     assert env.world.object_pose()[0][2] > TABLE_Z + 0.36
     assert info["state"][7] > 0.01, "fingers must be holding the object, not closed on nothing"
+
+
+class StandStill:
+    """Commands no joint motion and an open gripper, every step."""
+
+    def reset(self, info: dict) -> None:
+        pass
+
+    def act(self, obs: Observation) -> np.ndarray:
+        return np.array([0.0] * 7 + [-1.0], np.float32)
+
+
+def test_dart_noise_moves_the_arm_but_the_recorded_actions_are_the_teachers(env: GraspEnv) -> None:
+    still = run_episode(env, StandStill(), Job(21, "cube"), record=True)
+    noisy = run_episode(env, StandStill(), Job(21, "cube"), record=True, action_noise=0.3)
+    again = run_episode(env, StandStill(), Job(21, "cube"), record=True, action_noise=0.3)
+    drift = lambda r: np.abs(np.array(r.frames["state"])[:, :7] - r.frames["state"][0][:7]).max()  # noqa: E731
+    assert drift(noisy) > 3 * drift(still), "the noise must be executed (standing still sags a little)"
+    assert all(np.array_equal(a, StandStill().act(None)) for a in noisy.frames["action"]), "labels stay clean"
+    np.testing.assert_array_equal(noisy.frames["state"], again.frames["state"])  # seeded by the job
+
+
+def test_perturb_leaves_the_gripper_and_the_action_range_alone() -> None:
+    action = np.array([0.9] * 7 + [1.0], np.float32)
+    assert perturb(action, 0.0, np.random.default_rng(0)) is action
+    out = perturb(action, 5.0, np.random.default_rng(0))
+    assert out[7] == 1.0 and np.all(np.abs(out[:7]) <= 1.0) and not np.allclose(out[:7], 0.9)
+    assert action[0] == np.float32(0.9), "the teacher's action is not modified in place"
 
 
 def test_unknown_policy_spec_is_one_clear_error() -> None:

@@ -73,10 +73,12 @@ def expert_scenes(env: GraspEnv, kinds: tuple[str, ...], episodes: int, steps: t
 
 
 def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor: Sensor | None = None,
-                restore: str = "none") -> Rollout:
+                restore: str = "none", action_noise: float = 0.0) -> Rollout:
     """Reset to ``job``, act until the episode ends; the sensor maps clean depth to what the policy sees,
-    after the runtime's hole restoration ``restore``."""
+    after the runtime's hole restoration ``restore``. ``action_noise`` > 0 executes each action with that
+    much Gaussian noise on its joints (seeded by the job) while recording the policy's own action: DART."""
     info = start_episode(env, policy, job, (sensor,))
+    rng = np.random.default_rng([job.seed, 0xDA27])
     rollout = Rollout(job.seed, job.kind, False, 0, info["episode"], env.world.intr.K,
                       env.world.camera_extrinsics())
     if record:
@@ -93,12 +95,23 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
                                ("rgb", info.get("rgb"))):
                 if key in rollout.frames:
                     rollout.frames[key].append(value)
-        obs, _, terminated, truncated, info = env.step(action)
+        obs, _, terminated, truncated, info = env.step(perturb(action, action_noise, rng))
         rollout.steps += 1
         if terminated or truncated:
             rollout.success = bool(info["success"])
             rollout.taught_from = getattr(policy, "taught_from", 0)
             return rollout
+
+
+def perturb(action: np.ndarray, noise: float, rng: np.random.Generator) -> np.ndarray:
+    """DART (Laskey et al. 2017): a teacher whose executed joint commands are noisy visits the states a
+    student's errors lead to, and its recorded actions say how to recover from them. The gripper command
+    is left alone; joints stay in the action range [-1, 1]."""
+    if not noise:
+        return action
+    out = action.copy()
+    out[:7] = np.clip(action[:7] + rng.normal(0.0, noise, 7), -1.0, 1.0)
+    return out
 
 
 def observe(sensor: Sensor | None, env: GraspEnv, depth: np.ndarray | None, restore: str
@@ -117,28 +130,31 @@ def observe(sensor: Sensor | None, env: GraspEnv, depth: np.ndarray | None, rest
 _WORKER: dict = {}
 
 
-def _init(config: EnvConfig, policy_spec: str, record: bool, sensor_spec: str, restore: str) -> None:
+def _init(config: EnvConfig, policy_spec: str, record: bool, sensor_spec: str, restore: str,
+          action_noise: float) -> None:
     _WORKER.update(env=GraspEnv(config), policy=make_policy(policy_spec), record=record,
-                   sensor=make_sensor(sensor_spec), restore=restore)
+                   sensor=make_sensor(sensor_spec), restore=restore, action_noise=action_noise)
 
 
 def _work(job: Job) -> Rollout:
-    return run_episode(_WORKER["env"], _WORKER["policy"], job, record=_WORKER["record"],
-                       sensor=_WORKER["sensor"], restore=_WORKER["restore"])
+    w = _WORKER
+    return run_episode(w["env"], w["policy"], job, record=w["record"], sensor=w["sensor"],
+                       restore=w["restore"], action_noise=w["action_noise"])
 
 
 def rollouts(config: EnvConfig, policy_spec: str, jobs: Iterable[Job], *, workers: int = 1,
-             record: bool = False, sensor_spec: str = "clean", restore: str = "none") -> Iterator[Rollout]:
+             record: bool = False, sensor_spec: str = "clean", restore: str = "none",
+             action_noise: float = 0.0) -> Iterator[Rollout]:
     """Run ``jobs`` in order; ``workers`` > 1 uses that many processes, each building its own env,
     policy and sensor from the specs."""
     if workers <= 1:
-        _init(config, policy_spec, record, sensor_spec, restore)
+        _init(config, policy_spec, record, sensor_spec, restore, action_noise)
         try:
             yield from map(_work, jobs)
         finally:
             _WORKER.pop("env").close()
         return
     ctx = mp.get_context("spawn")
-    initargs = (config, policy_spec, record, sensor_spec, restore)
+    initargs = (config, policy_spec, record, sensor_spec, restore, action_noise)
     with ctx.Pool(workers, initializer=_init, initargs=initargs) as pool:
         yield from pool.imap(_work, jobs)
