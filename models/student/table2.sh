@@ -10,6 +10,8 @@
 #   models/student/table2.sh reactive   a GT student on demos of the phase-free (reactive) expert, and its cells
 #   models/student/table2.sh dagger     the hand-target GT student, recovery demos where it drives, the students
 #                                       fine-tuned on them (and the same budget without them), and their cells
+#   models/student/table2.sh dart       DART demos (noisy execution, clean labels), a GT student fine-tuned on them
+#                                       beside one on the scripted demos alone, and their clean cells
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -21,15 +23,19 @@ export OMP_NUM_THREADS=1
 CLEAN_EPISODES=${CLEAN_EPISODES:-100}
 STEREO_EPISODES=${STEREO_EPISODES:-90}
 
+finetune() {  # out demos depth-source threads: the table's budget, 8000 steps from the GT student
+    local out=runs/student/$1
+    python -m trainer student fit --demos "$2" --depth-source "$3" --out "$out" \
+        --init runs/student/gt_1000_obj1/ckpt.pt --object-loss 1 --steps 8000 --batch 32 --lr 1e-4 \
+        --warmup 200 --width 16 --head-dims 32 64 128 --threads "$4" --ckpt-every 1000
+    python -m export "$out/ckpt.pt" --ddim-steps 4 --out "$out.onnx"
+}
+
 train() {
     # ddg: train.sh step 4's first stage kept in its own folder (it ran on 2 threads; the others on 1)
     for run in "ddg ddg2_ft_8k 2" "randnoise randnoise_ft_8k 1" "ddg_nograft ddg_nograft_ft_8k 1"; do
         set -- $run
-        out=runs/student/$2
-        python -m trainer student fit --demos runs/sim/demos_seen.zarr --depth-source "$1" --out "$out" \
-            --init runs/student/gt_1000_obj1/ckpt.pt --object-loss 1 --steps 8000 --batch 32 --lr 1e-4 \
-            --warmup 200 --width 16 --head-dims 32 64 128 --threads "$3" --ckpt-every 1000
-        python -m export "$out/ckpt.pt" --ddim-steps 4 --out "$out.onnx"
+        finetune "$2" runs/sim/demos_seen.zarr "$1" "$3"
     done
 }
 
@@ -140,6 +146,23 @@ dagger() {
     fit ddg_hand_8k runs/sim/demos_seen.zarr ddg 1 8000 --lr 1e-4 --init runs/student/gt_hand_more_8k/ckpt.pt
 }
 
+dart() {
+    # DART demos (docs/student.md "DART"): the scripted expert with its joint commands executed under N(0, 0.3)
+    # noise, its own actions stored; 500 successful episodes (seeds 20000..) appended to a copy of the 1000
+    # scripted demos. The GT student fine-tuned on them beside the same budget on the scripted demos alone.
+    [ -d runs/sim/demos_seen_dart.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_dart.zarr
+    python -m trainer collect --action-noise 0.3 --episodes 1500 --seed 20000 --workers 2 \
+        --out runs/sim/demos_seen_dart.zarr
+    finetune gt_dart_8k runs/sim/demos_seen_dart.zarr gt 1 &
+    finetune gt_more_8k runs/sim/demos_seen.zarr gt 1
+    wait
+    for objects in seen unseen; do
+        for name in gt_more_8k gt_dart_8k; do
+            cell "$name" "runs/student/$name.onnx" none clean "$objects" 180 runs/table2/key
+        done
+    done
+}
+
 table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order of STUDENTS, then the reactive one);
            # a cell measured by `key` (180 episodes) replaces the smaller one
     local files=() key
@@ -155,4 +178,4 @@ table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order o
     python -m trainer table "${files[@]}" --base docs/table2.json --out docs/table2.json
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b [NAME...]}"
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart [NAME...]}"
