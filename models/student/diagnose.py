@@ -6,9 +6,9 @@
     python models/student/diagnose.py dart --sigma 0 0.3 --episodes 24       # the expert under DART noise
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
-look like; ``spread`` regresses a policy's closing offset (object minus
-grasp site when it first closes the gripper) on each group of the episode's randomisation and prints the
-adjusted R^2 per group: which of them the error follows.
+look like; ``spread`` regresses a policy's closing offset (object minus grasp site when it first closes the
+gripper) on each group of the episode's randomisation and prints the adjusted R^2 per group: which of them the
+error follows.
 """
 
 from __future__ import annotations
@@ -30,6 +30,11 @@ GROUPS_OF_EPISODE = ("object_xy", "object_yaw", "crop_window", "camera_pos", "q0
                      "joint_friction", "joint_damping_scale", "joint_stiffness", "kind")
 
 
+def jobs(episodes: int) -> list[Job]:
+    """The evaluation episodes every measurement here shares (as ``trainer evaluate``'s defaults)."""
+    return [Job(10_000 + i, KINDS[i % len(KINDS)]) for i in range(episodes)]
+
+
 class OffsetExpert(ScriptedExpert):
     """The scripted expert aiming its grasp ``offset_cm`` away from where it should."""
 
@@ -45,16 +50,14 @@ class OffsetExpert(ScriptedExpert):
 def tolerance(episodes: int) -> None:
     env = GraspEnv(EnvConfig(objects=KINDS, render_depth=False))
     for offset in OFFSETS_CM:
-        wins = [run_episode(env, OffsetExpert(offset), Job(10_000 + i, KINDS[i % len(KINDS)])).success
-                for i in range(episodes)]
+        wins = [run_episode(env, OffsetExpert(offset), job).success for job in jobs(episodes)]
         print(f"grasp aimed {offset} cm off: success {np.mean(wins):.2f} ({episodes} episodes)", flush=True)
 
 
 def dart(episodes: int, sigmas: list[float]) -> None:
     env = GraspEnv(EnvConfig(objects=KINDS, render_depth=False))
     for sigma in sigmas:
-        runs = [run_episode(env, ScriptedExpert(), Job(10_000 + i, KINDS[i % len(KINDS)]), action_noise=sigma)
-                for i in range(episodes)]
+        runs = [run_episode(env, ScriptedExpert(), job, action_noise=sigma) for job in jobs(episodes)]
         closes = np.array([r.closed_at[1] for r in runs if r.closed_at is not None]) * 100
         print(f"action noise {sigma}: success {np.mean([r.success for r in runs]):.2f}, "
               f"{np.mean([r.steps for r in runs]):.0f} steps, object - hand at the first close "
@@ -78,8 +81,8 @@ def adjusted_r2(x: np.ndarray, y: np.ndarray) -> float:
 
 
 def spread(policy: str, episodes: int) -> None:
-    jobs = [Job(10_000 + i, KINDS[i % len(KINDS)]) for i in range(episodes)]
-    closed = [r for r in rollouts(EnvConfig(objects=KINDS), policy, jobs) if r.closed_at is not None]
+    runs = rollouts(EnvConfig(objects=KINDS), policy, jobs(episodes))
+    closed = [r for r in runs if r.closed_at is not None]
     offsets = np.array([r.closed_at[1] for r in closed]) * 100
     print(f"{len(closed)} of {episodes} episodes closed the gripper; object - hand at the first close, cm:")
     for axis, name in enumerate("xyz"):

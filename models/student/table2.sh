@@ -147,7 +147,7 @@ dagger() {
 }
 
 dart() {
-    # DART demos (docs/student.md "DART"): the scripted expert with its joint commands executed under N(0, 0.3)
+    # DART demos (docs/student.md "Not DART either"): the scripted expert with its joint commands executed under N(0, 0.3)
     # noise, its own actions stored; 500 successful episodes (seeds 20000..) appended to a copy of the 1000
     # scripted demos. The GT student fine-tuned on them beside the same budget on the scripted demos alone.
     [ -d runs/sim/demos_seen_dart.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_dart.zarr
