@@ -17,7 +17,7 @@ import onnx
 import onnxruntime as ort
 import torch
 
-from export.graph import example_inputs, read_metadata, robot_scale
+from export.graph import example_inputs, read_metadata
 from runtime.metadata import MetadataError, PolicyMetadata
 from trainer.student import checkpoint
 from trainer.student.ddim import reference_scheduler
@@ -37,7 +37,9 @@ def reference_actions(policy: StudentPolicy, meta: PolicyMetadata, depth: torch.
         x = noise
         for t in sched.timesteps:
             x = sched.step(policy(x, t.expand(x.shape[0]), obs), t, x).prev_sample
-        return policy.action_norm.unnormalise(x) * robot_scale(policy.config, meta.action_scale)
+        actions = policy.action_norm.unnormalise(x)
+    actions[..., :7] *= meta.action_scale
+    return actions
 
 
 def session(path: Path, threads: int) -> ort.InferenceSession:

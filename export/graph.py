@@ -12,7 +12,6 @@ from torch import nn
 
 from runtime.metadata import METADATA_KEY, PolicyMetadata
 from trainer.student.checkpoint import Checkpoint, sha256
-from trainer.student.config import StudentConfig
 from trainer.student.ddim import ddim_plan, ddim_update
 from trainer.student.model import StudentPolicy
 
@@ -29,7 +28,9 @@ class UnrolledPolicy(nn.Module):
         super().__init__()
         self.policy = policy
         self.plan = ddim_plan(policy.config.train_timesteps, ddim_steps)
-        self.register_buffer("robot_scale", robot_scale(policy.config, action_scale))
+        joint_scale = torch.ones(policy.config.action_dim)
+        joint_scale[:7] = action_scale  # paper eq. 1: the 7 joint deltas in radians; the gripper stays as is
+        self.register_buffer("robot_scale", joint_scale)
 
     def forward(self, depth: torch.Tensor, state: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
         obs = self.policy.encode(depth, state)
@@ -38,15 +39,6 @@ class UnrolledPolicy(nn.Module):
             steps = torch.full((x.shape[0],), step.timestep, dtype=torch.int64)
             x = ddim_update(x, self.policy(x, steps, obs), step)
         return self.policy.action_norm.unnormalise(x) * self.robot_scale
-
-
-def robot_scale(config: StudentConfig, action_scale: float) -> torch.Tensor:
-    """Factors from the model's un-normalised actions to robot units: paper eq. 1's s on the 7 joint deltas
-    (radians), 1 on absolute joint targets (already radians) and on the gripper."""
-    scale = torch.ones(config.action_dim)
-    if config.action_mode == "delta":
-        scale[:7] = action_scale
-    return scale
 
 
 def example_inputs(meta: PolicyMetadata, seed: int = 0) -> tuple[torch.Tensor, ...]:
@@ -62,12 +54,10 @@ def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path) -> Polic
     cfg, info, net = ckpt.config, ckpt.info, ckpt.policy()
     return PolicyMetadata(
         preprocess=info.depth_spec, control_rate_hz=info.control_rate_hz, action_scale=info.action_scale,
-        action_mode=cfg.action_mode,
         obs_horizon=cfg.obs_horizon, action_horizon=cfg.action_horizon, exec_horizon=cfg.exec_horizon,
         ddim_steps=ddim_steps, state_dim=cfg.state_dim, action_dim=cfg.action_dim,
         normalisation={"state": net.state_norm.summary(), "action": net.action_norm.summary(),
-                       "action_units": ("env [-1, 1]; joints x action_scale in the graph output"
-                                        if cfg.action_mode == "delta" else "joint targets, rad")},
+                       "action_units": "env [-1, 1]; joints x action_scale in the graph output"},
         training_data={**info.data, "checkpoint": str(Path(ckpt_path).resolve()),
                        "checkpoint_sha256": sha256(ckpt_path), "train_step": ckpt.step,
                        "student_config": cfg.to_json()},

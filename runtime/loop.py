@@ -9,8 +9,7 @@ start so that cutoffs fall between frame arrivals. A tick that sends after its d
 cutoff has already passed when the previous one ends are skipped, never made up in a burst.
 
 Actions. One inference yields ``action_horizon`` actions; the loop executes ``exec_horizon`` of them, one
-per tick, as ``q_target = q_measured + delta`` (paper eq. 1; ``runtime.policy.joint_step``, which also turns a
-policy's absolute joint targets into bounded steps) with the gripper thresholded at 0. An action
+per tick, as ``q_target = q_measured + delta`` (paper eq. 1) with the gripper thresholded at 0. An action
 whose tick was skipped is dropped, not sent late.
 
 Faults. No usable frame for one control period past the expected one (stall), stale robot state or a
@@ -34,7 +33,7 @@ import numpy as np
 import zmq
 
 from runtime.cameras import Camera, CameraEnded, CameraError, CameraStalled, Frame
-from runtime.policy import NanActionError, Policy, PolicyError, joint_step
+from runtime.policy import NanActionError, Policy, PolicyError
 from runtime.preprocess import RESTORE_METHODS, FrameStack, preprocess
 from runtime.protocol import DEFAULT_ROBOT, DOF, Encoder, Message, robot_endpoints
 from runtime.transport import CurveKeys, Newest, connect, send
@@ -324,7 +323,7 @@ class ControlLoop:
         self._hold_q = None
         q_now = np.asarray(self.robot.latest["q"], dtype=np.float64)
         self._gripper = 1.0 if action[DOF] > 0 else -1.0
-        return self._send(tick, q_now + joint_step(action, q_now, self.policy.metadata), self._gripper)
+        return self._send(tick, q_now + action[:DOF], self._gripper)
 
     def _hold_tick(self, tick: Tick) -> Tick:
         """Command hold - the position latched when the fault began, gripper unchanged - and forget the

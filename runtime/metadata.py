@@ -14,7 +14,6 @@ from runtime.preprocess import DepthSpec
 
 SCHEMA = "diffudepgrasp.policy/1"
 METADATA_KEY = "diffudepgrasp"  # the metadata_props key that holds the JSON
-ACTION_MODES = ("delta", "absolute")
 
 
 class MetadataError(ValueError):
@@ -27,11 +26,7 @@ class PolicyMetadata:
     """How raw depth becomes the ``depth`` input; the runtime applies exactly this."""
     control_rate_hz: float = 10.0
     action_scale: float = 0.05
-    """``s`` of paper eq. 1 (radians): applied to the 7 joint deltas the graph outputs (``delta``), and the
-    most an ``absolute`` target may move the arm's command per tick."""
-    action_mode: str = "delta"
-    """The graph's 7 joint values: ``delta`` (q_target = q_measured + value) or ``absolute`` (joint targets,
-    radians); ``runtime.policy.joint_step`` turns either into this tick's step."""
+    """``s`` of paper eq. 1, already applied to the 7 joint deltas the graph outputs (radians)."""
     obs_horizon: int = 3
     """Depth frames stacked in the ``depth`` input, oldest first."""
     action_horizon: int = 16
@@ -56,8 +51,6 @@ class PolicyMetadata:
         if not (0 < self.exec_horizon <= self.action_horizon):
             raise MetadataError(f"exec_horizon {self.exec_horizon} must be in 1..action_horizon "
                                 f"({self.action_horizon})")
-        if self.action_mode not in ACTION_MODES:
-            raise MetadataError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
         for name in ("control_rate_hz", "action_scale"):
             if not getattr(self, name) > 0:
                 raise MetadataError(f"{name} must be positive, got {getattr(self, name)}")

@@ -54,8 +54,7 @@ class SessionConfig:
 
 
 class Policy:
-    """Runs the student: a depth stack + joint state -> an action chunk of joint deltas (or targets) and
-    gripper."""
+    """Runs the student: a depth stack + joint state -> an action chunk of joint deltas and gripper."""
 
     def __init__(self, path: str | Path, config: SessionConfig = SessionConfig(), seed: int = 0) -> None:
         self.path = Path(path)
@@ -95,15 +94,6 @@ class Policy:
             self(depth, state)
             durations.append(time.perf_counter() - t)
         return durations
-
-
-def joint_step(action: np.ndarray, q_measured: np.ndarray, meta: PolicyMetadata) -> np.ndarray:
-    """This tick's joint step, q_target - q_measured (rad), from one action of the chunk: a delta as it is
-    (paper eq. 1), an absolute target as the way to it, at most ``action_scale`` per joint so a target far
-    from where the arm is never becomes a jump."""
-    if meta.action_mode == "delta":
-        return action[:DOF]
-    return np.clip(action[:DOF] - q_measured[:DOF], -meta.action_scale, meta.action_scale)
 
 
 def _open(path: Path, config: SessionConfig) -> ort.InferenceSession:

@@ -54,28 +54,3 @@ def test_check_refuses_a_foreign_checkpoint(untrained_student_onnx, tmp_path):
     assert student_main(["init", "--out", str(other), "--width", "8", "--head-dims", "16", "32"]) == 0
     with pytest.raises(CheckError, match="sha256"):
         run_check(untrained_student_onnx, other, repeats=1, trials=1, threads=1)
-
-
-def test_an_absolute_target_student_exports_radians_and_says_so(tmp_path):
-    """Same weights, two action modes: the delta graph's joints are s x the absolute graph's (which are
-    joint targets in radians, unscaled); the gripper is the same; the metadata tells the runtime which."""
-    from runtime.policy import Policy
-    from tests.conftest import TINY_STUDENT
-    from trainer.student.cli import main as student_main
-
-    outputs, metas = {}, {}
-    for mode in ("delta", "absolute"):
-        ckpt, onnx_path = tmp_path / f"{mode}.pt", tmp_path / f"{mode}.onnx"
-        assert student_main(["init", "--out", str(ckpt), *TINY_STUDENT, "--action-mode", mode]) == 0
-        assert export_main([str(ckpt), "--ddim-steps", "2", "--out", str(onnx_path)]) == 0
-        assert run_check(onnx_path, repeats=1, trials=1, threads=1)["max_abs_err"] <= 1e-5
-        policy = Policy(onnx_path)
-        metas[mode] = policy.metadata
-        rng = np.random.default_rng(0)
-        depth = rng.random(policy.metadata.input_shapes()["depth"][1:], dtype=np.float32)
-        outputs[mode] = policy(depth, np.zeros(8, np.float32), rng.standard_normal(policy.noise_shape,
-                                                                                  dtype=np.float32))
-    assert metas["delta"].action_mode == "delta" and metas["absolute"].action_mode == "absolute"
-    s = metas["delta"].action_scale
-    np.testing.assert_allclose(outputs["delta"][:, :7], s * outputs["absolute"][:, :7], rtol=1e-5, atol=1e-7)
-    np.testing.assert_allclose(outputs["delta"][:, 7], outputs["absolute"][:, 7], rtol=1e-5, atol=1e-7)

@@ -46,7 +46,6 @@ def test_untrained_policy_warns(tmp_path, capsys):
     (lambda p: handmade.build(p, meta_json=handmade.meta_dict(schema="diffudepgrasp.policy/0")), "schema"),
     (lambda p: handmade.build(p, meta_json=handmade.meta_dict(schema=None)), "schema"),
     (lambda p: handmade.build(p, meta_json=handmade.meta_dict(surprise=1)), "unknown"),
-    (lambda p: handmade.build(p, meta_json=handmade.meta_dict(action_mode="velocity")), "action_mode"),
     (lambda p: handmade.build(p, meta=handmade.metadata(state_dim=9)), "state_dim=9"),
     (lambda p: handmade.build(p, horizon=8), "noise has shape"),
 ])

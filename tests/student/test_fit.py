@@ -7,7 +7,6 @@ import json
 import os
 import subprocess
 import sys
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -65,7 +64,7 @@ def test_init_starts_a_new_run_from_another_students_weights(small_demos, tmp_pa
     gt = tmp_path / "gt" / "ckpt.pt"
     assert fit_main(fit_args(small_demos, gt.parent, 3)) == 0
     source = checkpoint.load(gt)
-    start = warm_start(gt, source.config, checkpoint.TrainingInfo(), DemoDataset(small_demos, "gt", 3, 16))
+    start = warm_start(gt, source.config, checkpoint.TrainingInfo())
     assert start.step == 0 and start.optimizer is None
     assert start.info.data["init_sha256"] == checkpoint.sha256(gt)
     for name, value in source.ema.items():
@@ -76,30 +75,6 @@ def test_init_starts_a_new_run_from_another_students_weights(small_demos, tmp_pa
     assert run.step == 1 and run.info.data["depth_source"] == "randnoise" and "init_sha256" in run.info.data
     with pytest.raises(FitError, match="--init"):
         fit_main([*fit_args(small_demos, tmp_path / "wide", 1), "--width", "16", "--init", str(gt)])
-
-
-def test_init_may_switch_to_absolute_targets_refitting_only_the_action_normaliser(small_demos, tmp_path):
-    gt = tmp_path / "gt" / "ckpt.pt"
-    assert fit_main(fit_args(small_demos, gt.parent, 1)) == 0
-    source = checkpoint.load(gt)
-    absolute = DemoDataset(small_demos, "gt", 3, 16, action_mode="absolute")
-    config = replace(source.config, action_mode="absolute")
-    start = warm_start(gt, config, checkpoint.TrainingInfo(), absolute)
-    net = start.policy()
-    np.testing.assert_allclose(net.action_norm.summary()["low"], absolute.action.min(0), atol=1e-6)
-    np.testing.assert_allclose(net.action_norm.summary()["high"], absolute.action.max(0), atol=1e-6)
-    moved = {k for k, v in source.ema.items() if not torch.equal(start.model[k], v)}
-    assert moved == {"action_norm.centre", "action_norm.half_range"}
-
-
-def test_absolute_labels_are_the_commanded_joint_targets(small_demos):
-    delta = DemoDataset(small_demos, "gt", 3, 16)
-    absolute = DemoDataset(small_demos, "gt", 3, 16, action_mode="absolute")
-    s = delta.action_scale
-    commanded = delta.state[:, :7] + s * np.clip(delta.action[:, :7], -1, 1)
-    np.testing.assert_allclose(absolute.action[:, :7], commanded, atol=1e-6)
-    np.testing.assert_array_equal(absolute.action[:, 7], delta.action[:, 7])
-    assert not np.allclose(absolute.action[:, :7], delta.state[:, :7])  # the demos move
 
 
 @pytest.mark.slow

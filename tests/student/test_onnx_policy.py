@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.metadata import PolicyMetadata
-from runtime.preprocess import DepthSpec, normalise
+from runtime.preprocess import normalise
 from trainer.policies import Observation, make_policy
-from trainer.student.onnx_policy import to_env_action
+from trainer.student.onnx_policy import to_env_actions
 
 
 def observation(rng: np.random.Generator) -> Observation:
@@ -32,22 +31,11 @@ def test_student_spec_acts_in_env_units_and_replans_every_exec_horizon(untrained
     assert (first == -1).any()
 
 
-def test_to_env_action_undoes_the_action_scale_of_a_delta():
-    meta = PolicyMetadata(preprocess=DepthSpec(), action_scale=0.05)
-    state = np.full(8, 0.7, np.float32)  # a delta does not depend on where the arm is
-    env = to_env_action(np.array([0.05, -0.025, 0, 0, 0, 0, 0.1, 0.3], np.float32), state, meta)
-    np.testing.assert_allclose(env[:7], [1.0, -0.5, 0, 0, 0, 0, 1.0])
-    assert env[7] == 1.0
-    assert to_env_action(np.zeros(8, np.float32) - 0.2, state, meta)[7] == -1.0
-
-
-def test_to_env_action_steps_towards_an_absolute_target_at_most_s_per_joint():
-    meta = PolicyMetadata(preprocess=DepthSpec(), action_scale=0.05, action_mode="absolute")
-    state = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.04], np.float32)
-    target = state.copy()
-    target[:7] += [0.025, -0.025, 0.0, 0.5, -0.5, 0.05, -0.01]
-    env = to_env_action(target, state, meta)
-    np.testing.assert_allclose(env[:7], [0.5, -0.5, 0.0, 1.0, -1.0, 1.0, -0.2], atol=1e-5)
+def test_to_env_actions_undoes_the_action_scale():
+    chunk = np.array([[0.05, -0.025, 0, 0, 0, 0, 0.1, 0.3], [0, 0, 0, 0, 0, 0, 0, -0.2]], np.float32)
+    env = to_env_actions(chunk, 0.05)
+    np.testing.assert_allclose(env[0, :7], [1.0, -0.5, 0, 0, 0, 0, 1.0])
+    assert env[:, 7].tolist() == [1.0, -1.0]
 
 
 def test_only_the_frames_an_inference_stacks_are_made_and_the_inputs_are_unchanged(untrained_student_onnx):

@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, fields
 
-from runtime.metadata import ACTION_MODES
-
 
 class StudentConfigError(ValueError):
     """A student configuration that cannot build a model (bad width, horizon, dims)."""
@@ -37,10 +35,6 @@ class StudentConfig:
     """Size of the sinusoidal diffusion-step embedding."""
     train_timesteps: int = 100
     """DDPM steps used in training (squared-cosine schedule, as diffusion_policy)."""
-    action_mode: str = "delta"
-    """What the chunk's 7 joint values are: ``delta`` = paper eq. 1's deltas (q_target = q + s * a), or
-    ``absolute`` = the joint targets q + s * a themselves, in radians (diffusion_policy's position control):
-    a target does not carry the arm's offset from the demos forward the way a delta does."""
     hand_target: bool = False
     """The training-only object head also reads, from depth, where the hand is relative to the object:
     object minus grasp site in x, y and the grasp site's height above the table (3 more outputs)."""
@@ -55,8 +49,6 @@ class StudentConfig:
                                      f"2**{len(self.head_dims) - 1} for a {len(self.head_dims)}-level U-Net")
         if not (0 < self.exec_horizon <= self.action_horizon):
             raise StudentConfigError(f"exec_horizon {self.exec_horizon} must be in 1..{self.action_horizon}")
-        if self.action_mode not in ACTION_MODES:
-            raise StudentConfigError(f"action_mode must be one of {ACTION_MODES}, got {self.action_mode!r}")
         for name in ("keypoints", "obs_horizon", "state_dim", "action_dim", "state_features", "step_features",
                      "train_timesteps"):
             if getattr(self, name) < 1:

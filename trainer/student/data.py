@@ -38,8 +38,7 @@ class Batch:
     state: torch.Tensor
     """float32 [B, 8], raw units."""
     action: torch.Tensor
-    """float32 [B, Ha, 8], ``labels``: env units (joint deltas in [-1, 1] before s) or joint targets (rad),
-    gripper -1/+1."""
+    """float32 [B, Ha, 8], env units (joint deltas in [-1, 1] before s, gripper -1/+1)."""
     targets: torch.Tensor | None
     """float32 [B, 2 or 5]: ``privileged_targets`` standardised over the demos (sim-only: the auxiliary
     loss's target, never a policy input); None when the store does not record the object's position."""
@@ -57,7 +56,7 @@ class DemoDataset:
     """All of a store's steps in memory (uint16 depth: ~25 kB per step)."""
 
     def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int,
-                 hand_target: bool = False, action_mode: str = "delta") -> None:
+                 hand_target: bool = False) -> None:
         if depth_source not in DEPTH_ARRAYS:
             raise DemoDataError(f"unknown depth source {depth_source!r}; "
                                 f"choose one of {sorted(DEPTH_ARRAYS)}")
@@ -72,12 +71,11 @@ class DemoDataset:
         n = int(self.ends[-1])
         self.depth = np.asarray(store.root[key][:n])
         self.state = np.asarray(store.root["data/state"][:n], dtype=np.float32)
+        self.action = np.asarray(store.root["data/action"][:n], dtype=np.float32)
         attrs = store.attrs
         self.spec = DepthSpec.from_dict(attrs["depth_spec"])
         self.depth_scale = float(attrs["depth_scale"])
         self.action_scale = float(attrs["action_scale"])
-        self.action = labels(self.state, np.asarray(store.root["data/action"][:n], dtype=np.float32),
-                             self.action_scale, action_mode)
         self.control_rate_hz = float(attrs["control_rate_hz"])
         self.depth_source, self.path = depth_source, Path(path)
         self.obs_horizon, self.action_horizon = obs_horizon, action_horizon
@@ -120,16 +118,6 @@ class DemoDataset:
             h.update(np.ascontiguousarray(arr).tobytes())
         return {"demos": str(self.path.resolve()), "depth_source": self.depth_source,
                 "episodes": len(self.ends), "steps": len(self), "demos_sha256": h.hexdigest()[:16]}
-
-
-def labels(state: np.ndarray, action: np.ndarray, action_scale: float, action_mode: str) -> np.ndarray:
-    """What the student learns to predict from the stored env actions: the actions themselves (``delta``), or
-    (``absolute``) the joint targets they commanded, q + s * a (paper eq. 1), gripper unchanged."""
-    if action_mode == "delta":
-        return action
-    targets = action.copy()
-    targets[:, :7] = state[:, :7] + action_scale * np.clip(action[:, :7], -1.0, 1.0)
-    return targets
 
 
 def object_positions(store: DemoStore) -> np.ndarray | None:

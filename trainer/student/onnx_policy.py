@@ -1,9 +1,8 @@
 """The "student:ONNX" policy of ``trainer evaluate``: the exported file run exactly as the runtime runs it
 (runtime.policy over onnxruntime, runtime.preprocess normalisation and FrameStack), never through torch.
 
-The graph returns a chunk in robot units; the simulated env takes env actions, so each action becomes this
-step's joint step as the runtime computes it (``runtime.policy.joint_step``) divided by the action scale, and
-the gripper value is thresholded at 0 to -1/+1. The first
+The graph returns a chunk in robot units; the simulated env takes env actions, so the 7 joint deltas are
+divided by the action scale again and the gripper value is thresholded at 0 to -1/+1. The first
 ``exec_horizon`` actions of each chunk are executed before the policy is asked again (receding horizon); only
 the last ``obs_horizon`` frames before each inference are read (the others would leave the stack unused).
 """
@@ -15,9 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.metadata import PolicyMetadata
 from runtime.policy import Policy as RuntimePolicy
-from runtime.policy import joint_step
 from runtime.preprocess import FrameStack, normalise
 from trainer.dataset import DEPTH_SCALE
 from trainer.policies import Observation
@@ -41,16 +38,15 @@ class StudentOnnxPolicy:
             stack = self.frames.push(normalise(obs.depth, DEPTH_SCALE, self.meta.preprocess))
         if not self.queue:  # (so the push above ran this step)
             chunk = self.runtime(stack, obs.state)
-            self.queue.extend(chunk[: self.meta.exec_horizon])
-        return to_env_action(self.queue.popleft(), obs.state, self.meta)
+            self.queue.extend(to_env_actions(chunk[: self.meta.exec_horizon], self.meta.action_scale))
+        return self.queue.popleft()
 
 
-def to_env_action(action: np.ndarray, state: np.ndarray, meta: PolicyMetadata) -> np.ndarray:
-    """One robot-unit action [8] at joint state ``state`` -> env action: the runtime's joint step / s clipped
-    to [-1, 1], gripper -1/+1."""
-    env = np.empty(8, dtype=np.float32)
-    env[:7] = np.clip(joint_step(action, state, meta) / meta.action_scale, -1.0, 1.0)
-    env[7] = 1.0 if action[7] > 0 else -1.0
+def to_env_actions(chunk: np.ndarray, action_scale: float) -> np.ndarray:
+    """Robot-unit chunk [T, 8] -> env actions: joint deltas / s clipped to [-1, 1], gripper -1/+1."""
+    env = np.empty_like(chunk, dtype=np.float32)
+    env[:, :7] = np.clip(chunk[:, :7] / action_scale, -1.0, 1.0)
+    env[:, 7] = np.where(chunk[:, 7] > 0, 1.0, -1.0)
     return env
 
 

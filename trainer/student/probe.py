@@ -22,27 +22,25 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from runtime.metadata import PolicyMetadata
 from runtime.policy import PolicyError
 from trainer.dataset import DatasetError, DemoStore
 from trainer.student import checkpoint
 from trainer.student.checkpoint import CheckpointError
 from trainer.student.data import DemoDataError, DemoDataset, column_scale, privileged_targets
-from trainer.student.onnx_policy import StudentOnnxPolicy
+from trainer.student.onnx_policy import StudentOnnxPolicy, to_env_actions
 
 
 def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
     policy = StudentOnnxPolicy(policy_path)
     meta = policy.meta
-    data = DemoDataset(demos, depth_source, meta.obs_horizon, meta.action_horizon,
-                       action_mode=meta.action_mode)
+    data = DemoDataset(demos, depth_source, meta.obs_horizon, meta.action_horizon)
     steps = np.arange(0, len(data), every)
     stacks = [data.depth_stack(int(i)) for i in steps]
     other = np.roll(np.arange(len(steps)), len(steps) // 2)  # each step paired with a distant one
     rng = np.random.default_rng(0)
     joint_err, shuffled_err, zero_err, gripper_ok = [], [], [], []
     for n, i in enumerate(steps):
-        true = _env_units(data.action[data.action_indices(int(i))][: meta.exec_horizon], data.state[i], meta)
+        true = data.action[data.action_indices(int(i))][: meta.exec_horizon]
         noise = rng.standard_normal(policy.runtime.noise_shape, dtype=np.float32)  # same for both calls
         pred = _env_chunk(policy, stacks[n], data.state[i], noise)
         joint_err.append(np.abs(pred[:, :7] - true[:, :7]).mean())
@@ -85,20 +83,8 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
 
 def _env_chunk(policy: StudentOnnxPolicy, stack: np.ndarray, state: np.ndarray,
                noise: np.ndarray) -> np.ndarray:
-    chunk = policy.runtime(stack, state, noise)[: policy.meta.exec_horizon]
-    if policy.meta.action_mode == "delta":  # robot units -> the labels' env units
-        chunk = chunk * np.r_[np.full(7, 1.0 / policy.meta.action_scale), 1.0].astype(np.float32)
-    return _env_units(chunk, state, policy.meta)
-
-
-def _env_units(labels: np.ndarray, state: np.ndarray, meta: PolicyMetadata) -> np.ndarray:
-    """Training labels [T, 8] -> env units from ``state``: a delta as it is, an absolute target as the step
-    from ``state`` to it (/ s), so both modes' errors read alike and zero means "stay where you are"."""
-    if meta.action_mode == "delta":
-        return labels
-    steps = labels.copy()
-    steps[:, :7] = (labels[:, :7] - state[:7]) / meta.action_scale
-    return steps
+    chunk = policy.runtime(stack, state, noise)
+    return to_env_actions(chunk[: policy.meta.exec_horizon], policy.meta.action_scale)
 
 
 def main(argv: list[str] | None = None) -> int:

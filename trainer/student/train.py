@@ -138,7 +138,7 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
                         control_rate_hz=data.control_rate_hz, trained=True,
                         data={**fingerprint, "command": " ".join(sys.argv)})
     if cfg.init:
-        return warm_start(Path(cfg.init), model_cfg, info, data)
+        return warm_start(Path(cfg.init), model_cfg, info)
     ckpt = checkpoint.fresh(model_cfg, info, seed=cfg.seed)
     net = StudentPolicy(model_cfg)
     net.load_state_dict(ckpt.model)
@@ -149,21 +149,15 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
     return ckpt
 
 
-def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo, data: DemoDataset) -> Checkpoint:
-    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights. ``init`` may predict the other
-    ``action_mode``: then only the action normaliser is refitted, to the new labels."""
+def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo) -> Checkpoint:
+    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights."""
     source = checkpoint.load(init)
-    if replace(source.config, action_mode=model_cfg.action_mode) != model_cfg:
+    if source.config != model_cfg:
         raise FitError(f"--init {init} is a {source.config}, not the requested {model_cfg}")
     info = replace(info, data={**info.data, "init": str(init.resolve()),
                                "init_sha256": checkpoint.sha256(init)})
-    weights = {k: v.clone() for k, v in source.ema.items()}
-    if source.config.action_mode != model_cfg.action_mode:
-        net = StudentPolicy(model_cfg)
-        net.load_state_dict(weights)
-        net.action_norm.fit(data.action.min(0), data.action.max(0))
-        weights = net.state_dict()
-    return Checkpoint(model_cfg, info, ema=weights, model={k: v.clone() for k, v in weights.items()})
+    return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in source.ema.items()},
+                      model={k: v.clone() for k, v in source.ema.items()})
 
 
 def plot_losses(losses: list[float], path: Path) -> None:
@@ -191,7 +185,7 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
     if cfg.batch % world:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
     data = DemoDataset(cfg.demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
-                       model_cfg.hand_target, model_cfg.action_mode)
+                       model_cfg.hand_target)
     if cfg.object_loss and data.targets is None:
         raise FitError(f"{cfg.demos} does not record object_xy for every episode; train with --object-loss 0")
     ckpt = start_or_resume(cfg, model_cfg, data)
