@@ -4,21 +4,29 @@
     python models/student/diagnose.py tolerance --episodes 30   # the scripted expert aiming off on purpose
     python models/student/diagnose.py spread student:S.onnx --episodes 90   # what the closing offset follows
     python models/student/diagnose.py dart --sigma 0 0.3 --episodes 24       # the expert under DART noise
+    python models/student/diagnose.py descent student:S.onnx --episodes 30   # where the hand strays off
+    python models/student/diagnose.py locate student:S.onnx --checkpoint ckpt.pt   # its object estimate
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
 look like; ``spread`` regresses a policy's closing offset (object minus grasp site when it first closes the
 gripper) on each group of the episode's randomisation and prints the adjusted R^2 per group: which of them the
-error follows.
+error follows. ``descent`` follows the hand before that close: how near it came to the object horizontally,
+at what height, and how far it was when it closed. ``locate`` runs a student's training-only object head
+(from ``--checkpoint``) on the frames of a policy's episodes (the student's own, or the expert's), binned by
+the hand's height above the object until the close: whether its idea of where the object is degrades as the
+hand comes near.
 """
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import numpy as np
 
 from hil_sim.objects import GROUPS
-from trainer.sim.env import EnvConfig, GraspEnv
+from trainer.policies import make_policy
+from trainer.sim.env import OBJECT_FROM_HAND, EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, rollouts, run_episode
 from trainer.teacher.scripted import ScriptedExpert
 
@@ -26,6 +34,8 @@ KINDS = GROUPS["seen"]
 OFFSETS_CM = [(0, 0, 0), (1, 0, 0), (2, 0, 0), (3, 0, 0), (4, 0, 0), (-2, 0, 0), (-4, 0, 0), (0, 1, 0),
               (0, 2, 0), (0, 3, 0), (0, 4, 0), (0, -2, 0), (0, -4, 0), (0, 0, 1), (0, 0, 2), (0, 0, 3)]
 """World x, y, z (z up: a grasp too high)."""
+HEIGHT_BINS_CM = {"over 20": (20, np.inf), "10-20": (10, 20), "5-10": (5, 10), "under 5": (-np.inf, 5)}
+"""locate: the hand's height above the object centre (cm), before it closes."""
 GROUPS_OF_EPISODE = ("object_xy", "object_yaw", "crop_window", "camera_pos", "q0", "link_mass_scale",
                      "joint_friction", "joint_damping_scale", "joint_stiffness", "kind")
 
@@ -93,10 +103,78 @@ def spread(policy: str, episodes: int) -> None:
               + ", ".join(f"{g} {v:+.2f}" for g, v in fits.items()))
 
 
+class Tracker:
+    """Wraps a policy; records the object's offset from the grasp site (cm) at every step until the close."""
+
+    def __init__(self, inner) -> None:
+        self.inner, self.offsets, self.closed = inner, [], False
+
+    def reset(self, env_info: dict) -> None:
+        self.offsets, self.closed = [], False
+        self.inner.reset(env_info)
+
+    def act(self, obs) -> np.ndarray:
+        action = self.inner.act(obs)
+        if not self.closed:
+            self.offsets.append(obs.privileged[OBJECT_FROM_HAND] * 100)
+            self.closed = bool(action[7] > 0)
+        return action
+
+
+def descent(policy: str, episodes: int) -> None:
+    env, tracker = GraspEnv(EnvConfig(objects=KINDS)), Tracker(make_policy(policy))
+    nearest, at_close = [], []
+    for job in jobs(episodes):
+        won = run_episode(env, tracker, job).success
+        off = np.array(tracker.offsets)
+        aside = np.linalg.norm(off[:, :2], axis=1)
+        best = int(np.argmin(aside))
+        nearest.append((aside[best], -off[best, 2]))
+        at_close.append(aside[-1])
+        print(f"seed {job.seed} {job.kind:7s} success {int(won)}: nearest {aside[best]:.2f} cm aside at "
+              f"{-off[best, 2]:.1f} cm above (step {best}); {aside[-1]:.2f} cm aside at the close "
+              f"(step {len(off) - 1}, {-off[-1, 2]:.1f} cm above)", flush=True)
+    nearest_arr = np.array(nearest)
+    print(f"median over {episodes} episodes: nearest {np.median(nearest_arr[:, 0]):.2f} cm aside at "
+          f"{np.median(nearest_arr[:, 1]):.1f} cm above; at the close {np.median(at_close):.2f} cm aside")
+
+
+def locate(policy: str, ckpt_path: str, episodes: int) -> None:
+    import torch
+
+    from runtime.preprocess import normalise
+    from trainer.dataset import DEPTH_SCALE, DemoStore
+    from trainer.student import checkpoint
+    from trainer.student.data import column_scale, privileged_targets
+
+    ckpt = checkpoint.load(Path(ckpt_path))
+    net = ckpt.policy().eval()
+    mean, std = column_scale(privileged_targets(DemoStore.open(ckpt.info.data["demos"]), False))
+    env, tracker = GraspEnv(EnvConfig(objects=KINDS)), Tracker(make_policy(policy))
+    bins = {name: [] for name in HEIGHT_BINS_CM}
+    for job in jobs(episodes):
+        run = run_episode(env, tracker, job, record=True)
+        frames = [normalise(f, DEPTH_SCALE, ckpt.info.depth_spec) for f in run.frames["depth"]]
+        steps = len(tracker.offsets)
+        stacks = np.stack([[frames[max(0, i - k)] for k in range(ckpt.config.obs_horizon - 1, -1, -1)]
+                           for i in range(steps)])
+        with torch.no_grad():
+            guess = net.object_head(net.encoder(torch.from_numpy(stacks))).numpy()[:, :2] * std + mean
+        errors = np.linalg.norm(guess - np.asarray(run.episode["object_xy"]), axis=1) * 100
+        for error, offset in zip(errors, tracker.offsets, strict=True):
+            bins[next(n for n, (lo, hi) in HEIGHT_BINS_CM.items() if lo <= -offset[2] < hi)].append(error)
+    for name, errors in bins.items():
+        if errors:
+            print(f"hand {name} cm above the object: {len(errors)} steps, object estimate off by median "
+                  f"{np.median(errors):.2f} cm (p90 {np.percentile(errors, 90):.2f})")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", choices=["tolerance", "spread", "dart"])
-    p.add_argument("policy", nargs="?", default="scripted", help="spread: a trainer policy spec")
+    p.add_argument("what", choices=["tolerance", "spread", "dart", "descent", "locate"])
+    p.add_argument("policy", nargs="?", default="scripted",
+                   help="a trainer policy spec (spread, descent, locate)")
+    p.add_argument("--checkpoint", help="locate: the checkpoint the ONNX file was exported from")
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--sigma", type=float, nargs="+", default=[0.0, 0.3], help="dart: action noise levels")
     args = p.parse_args()
@@ -104,6 +182,10 @@ def main() -> None:
         tolerance(args.episodes)
     elif args.what == "dart":
         dart(args.episodes, args.sigma)
+    elif args.what == "descent":
+        descent(args.policy, args.episodes)
+    elif args.what == "locate":
+        locate(args.policy, args.checkpoint, args.episodes)
     else:
         spread(args.policy, args.episodes)
 

@@ -56,7 +56,9 @@ class DemoDataset:
     """All of a store's steps in memory (uint16 depth: ~25 kB per step)."""
 
     def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int,
-                 hand_target: bool = False) -> None:
+                 hand_target: bool = False, target_reference: np.ndarray | None = None) -> None:
+        """``target_reference``: the privileged targets whose mean and std standardise this store's (default:
+        its own); a store that only trains the object head is standardised like the training demos."""
         if depth_source not in DEPTH_ARRAYS:
             raise DemoDataError(f"unknown depth source {depth_source!r}; "
                                 f"choose one of {sorted(DEPTH_ARRAYS)}")
@@ -84,8 +86,9 @@ class DemoDataset:
         steps_per_ep = store.episode_lengths
         self._start = np.repeat(starts, steps_per_ep)
         self._end = np.repeat(self.ends, steps_per_ep)
-        targets = privileged_targets(store, hand_target)
-        self.targets = None if targets is None else standardise(targets, targets)
+        self.raw_targets = privileged_targets(store, hand_target)
+        reference = self.raw_targets if target_reference is None else target_reference
+        self.targets = None if self.raw_targets is None else standardise(self.raw_targets, reference)
 
     def __len__(self) -> int:
         return len(self.action)
