@@ -26,7 +26,7 @@ import numpy as np
 
 from hil_sim.objects import GROUPS
 from trainer.policies import make_policy
-from trainer.sim.env import OBJECT_FROM_HAND, EnvConfig, GraspEnv
+from trainer.sim.env import OBJECT_FROM_HAND, OBJECT_POSITION, EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, rollouts, run_episode
 from trainer.teacher.scripted import ScriptedExpert
 
@@ -104,19 +104,21 @@ def spread(policy: str, episodes: int) -> None:
 
 
 class Tracker:
-    """Wraps a policy; records the object's offset from the grasp site (cm) at every step until the close."""
+    """Wraps a policy; records the object's offset from the grasp site (cm) and its table position (m) at
+    every step until the close."""
 
     def __init__(self, inner) -> None:
-        self.inner, self.offsets, self.closed = inner, [], False
+        self.inner, self.offsets, self.objects, self.closed = inner, [], [], False
 
     def reset(self, env_info: dict) -> None:
-        self.offsets, self.closed = [], False
+        self.offsets, self.objects, self.closed = [], [], False
         self.inner.reset(env_info)
 
     def act(self, obs) -> np.ndarray:
         action = self.inner.act(obs)
         if not self.closed:
             self.offsets.append(obs.privileged[OBJECT_FROM_HAND] * 100)
+            self.objects.append(obs.privileged[OBJECT_POSITION][:2])
             self.closed = bool(action[7] > 0)
         return action
 
@@ -160,7 +162,8 @@ def locate(policy: str, ckpt_path: str, episodes: int) -> None:
                            for i in range(steps)])
         with torch.no_grad():
             guess = net.object_head(net.encoder(torch.from_numpy(stacks))).numpy()[:, :2] * std + mean
-        errors = np.linalg.norm(guess - np.asarray(run.episode["object_xy"]), axis=1) * 100
+        # against where the object is now, not where it was placed: a hand that strays may push it
+        errors = np.linalg.norm(guess - np.array(tracker.objects), axis=1) * 100
         for error, offset in zip(errors, tracker.offsets, strict=True):
             bins[next(n for n, (lo, hi) in HEIGHT_BINS_CM.items() if lo <= -offset[2] < hi)].append(error)
     for name, errors in bins.items():

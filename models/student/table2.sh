@@ -12,6 +12,8 @@
 #                                       fine-tuned on them (and the same budget without them), and their cells
 #   models/student/table2.sh dart       DART demos (noisy execution, clean labels), a GT student fine-tuned on them
 #                                       beside one on the scripted demos alone, and their clean cells
+#   models/student/table2.sh looking    more scripted demos, and the object head also on a student's recovery frames,
+#                                       each fine-tuned like `dart`, and their clean cells
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -23,11 +25,12 @@ export OMP_NUM_THREADS=1
 CLEAN_EPISODES=${CLEAN_EPISODES:-100}
 STEREO_EPISODES=${STEREO_EPISODES:-90}
 
-finetune() {  # out demos depth-source threads: the table's budget, 8000 steps from the GT student
-    local out=runs/student/$1
-    python -m trainer student fit --demos "$2" --depth-source "$3" --out "$out" \
+finetune() {  # out demos depth-source threads [fit options...]: the table's budget, 8000 steps from the GT student
+    local out=runs/student/$1 demos=$2 source=$3 threads=$4
+    shift 4
+    python -m trainer student fit --demos "$demos" --depth-source "$source" --out "$out" \
         --init runs/student/gt_1000_obj1/ckpt.pt --object-loss 1 --steps 8000 --batch 32 --lr 1e-4 \
-        --warmup 200 --width 16 --head-dims 32 64 128 --threads "$4" --ckpt-every 1000
+        --warmup 200 --width 16 --head-dims 32 64 128 --threads "$threads" --ckpt-every 1000 "$@"
     python -m export "$out/ckpt.pt" --ddim-steps 4 --out "$out.onnx"
 }
 
@@ -163,6 +166,24 @@ dart() {
     done
 }
 
+looking() {
+    # docs/student.md "The hand strays on the way down": 2000 more scripted demos (seeds 31007..) beside the 1000, and
+    # the object head also trained on the frames of 600 recovery episodes of gt_more_8k (the student drives to a
+    # seeded step, the reactive expert finishes; seeds 40000..); each the `dart` budget, against gt_more_8k.
+    [ -d runs/sim/demos_seen_3k.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_3k.zarr
+    python -m trainer collect --episodes 3000 --seed 30000 --workers 2 --out runs/sim/demos_seen_3k.zarr
+    python -m trainer collect --teacher takeover:runs/student/gt_more_8k.onnx --episodes 600 --seed 40000 \
+        --workers 1 --out runs/sim/takeover_gt_more_8k.zarr
+    finetune gt_3k_8k runs/sim/demos_seen_3k.zarr gt 1 &
+    finetune gt_lookfr_8k runs/sim/demos_seen.zarr gt 1 --object-demos runs/sim/takeover_gt_more_8k.zarr
+    wait
+    for objects in seen unseen; do
+        for name in gt_3k_8k gt_lookfr_8k; do
+            WORKERS=1 cell "$name" "runs/student/$name.onnx" none clean "$objects" 180 runs/table2/key
+        done
+    done
+}
+
 table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order of STUDENTS, then the reactive one);
            # a cell measured by `key` (180 episodes) replaces the smaller one
     local files=() key
@@ -178,4 +199,4 @@ table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order o
     python -m trainer table "${files[@]}" --base docs/table2.json --out docs/table2.json
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart [NAME...]}"
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking [NAME...]}"

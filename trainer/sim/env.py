@@ -33,6 +33,7 @@ from trainer.sim.reward import Measures, RewardWeights, Status, reward
 
 OBS_DIM = 40
 ACTION_DIM = 8
+OBJECT_POSITION = slice(25, 28)
 OBJECT_FROM_HAND = slice(36, 39)
 
 
