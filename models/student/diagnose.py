@@ -177,10 +177,12 @@ def main() -> None:
     p.add_argument("what", choices=["tolerance", "spread", "dart", "descent", "locate"])
     p.add_argument("policy", nargs="?", default="scripted",
                    help="a trainer policy spec (spread, descent, locate)")
-    p.add_argument("--checkpoint", help="locate: the checkpoint the ONNX file was exported from")
+    p.add_argument("--checkpoint", help="locate: the student checkpoint whose object head is measured")
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--sigma", type=float, nargs="+", default=[0.0, 0.3], help="dart: action noise levels")
     args = p.parse_args()
+    if args.what == "locate" and not args.checkpoint:
+        p.error("locate needs --checkpoint (the student whose object head is measured)")
     if args.what == "tolerance":
         tolerance(args.episodes)
     elif args.what == "dart":
