@@ -144,7 +144,7 @@ def descent(policy: str, episodes: int) -> None:
 def locate(policy: str, ckpt_path: str, episodes: int) -> None:
     import torch
 
-    from runtime.preprocess import normalise
+    from runtime.preprocess import FrameStack, normalise
     from trainer.dataset import DEPTH_SCALE, DemoStore
     from trainer.student import checkpoint
     from trainer.student.data import column_scale, privileged_targets
@@ -156,10 +156,9 @@ def locate(policy: str, ckpt_path: str, episodes: int) -> None:
     bins = {name: [] for name in HEIGHT_BINS_CM}
     for job in jobs(episodes):
         run = run_episode(env, tracker, job, record=True)
-        frames = [normalise(f, DEPTH_SCALE, ckpt.info.depth_spec) for f in run.frames["depth"]]
-        steps = len(tracker.offsets)
-        stacks = np.stack([[frames[max(0, i - k)] for k in range(ckpt.config.obs_horizon - 1, -1, -1)]
-                           for i in range(steps)])
+        history = FrameStack(ckpt.config.obs_horizon)  # the runtime's stacking rule
+        stacks = np.stack([history.push(normalise(f, DEPTH_SCALE, ckpt.info.depth_spec))
+                           for f in run.frames["depth"][: len(tracker.offsets)]])
         with torch.no_grad():
             guess = net.object_head(net.encoder(torch.from_numpy(stacks))).numpy()[:, :2] * std + mean
         # against where the object is now, not where it was placed: a hand that strays may push it
