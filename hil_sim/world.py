@@ -33,6 +33,10 @@ CAMERA_POS = (1.30, 0.20, TABLE_Z + 0.60)
 CAMERA_TARGET = (0.50, 0.0, TABLE_Z + 0.18)
 HOME_Q = (0.0, -0.30, 0.0, -2.20, 0.0, 0.35, 0.0)
 """Ready pose: hand about 40 cm above the table centre, pointing down (found with the expert's IK)."""
+LIBFRANKA_FROM_MODEL_Q = (0.0, 0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0)
+"""Add to this model's arm angles to get libfranka's: the Franka Kitchen MJCF turns link 6 a quarter turn
+from the published DH frames, so its joint 6 reads pi/2 less (measured: the grasp site then matches
+``runtime.franka_driver.kinematics.tcp_frame`` to 0.1 mm over the workspace)."""
 GRIPPER_OPEN_M = 0.04
 """Per-finger travel; the gripper opening (state[7]) is the sum of both fingers, 0..0.08 m."""
 FINGER_KP = 1500.0

@@ -22,12 +22,28 @@ FLANGE_D = 0.107
 HAND_TCP_D = 0.1034
 
 
-def _link(a: float, d: float, alpha: float, theta: float) -> np.ndarray:
-    ca, sa, ct, st = np.cos(alpha), np.sin(alpha), np.cos(theta), np.sin(theta)
-    return np.array([[ct, -st, 0.0, a],
-                     [st * ca, ct * ca, -sa, -d * sa],
-                     [st * sa, ct * sa, ca, d * ca],
-                     [0.0, 0.0, 0.0, 1.0]])
+def link_transform(a: float, d: float, alpha: float, theta, xp=np):
+    """Modified-DH transform of one link, [..., 4, 4], for joint angles ``theta`` of any batch shape.
+    ``xp`` is the array module (numpy here; the student network passes torch to build the same chain into
+    its graph), so there is one implementation of the arm's kinematics."""
+    ct, st = xp.cos(theta), xp.sin(theta)
+    ca, sa = float(np.cos(alpha)), float(np.sin(alpha))
+    zero = theta * 0.0
+    rows = [[ct, -st, zero, zero + a],
+            [st * ca, ct * ca, zero - sa, zero - d * sa],
+            [st * sa, ct * sa, zero + ca, zero + d * ca],
+            [zero, zero, zero, zero + 1.0]]
+    return xp.stack([xp.stack(row, axis=-1) for row in rows], axis=-2)
+
+
+def tcp_frame(q, xp=np):
+    """Position [..., 3] (base frame, metres) and rotation [..., 3, 3] of the Franka Hand's TCP (the hand's
+    own -45 degree turn about the flange axis left out) for joint angles ``q`` [..., 7]."""
+    pose = link_transform(*_DH[0], q[..., 0], xp)
+    for i in range(1, 7):
+        pose = pose @ link_transform(*_DH[i], q[..., i], xp)
+    rot = pose[..., :3, :3]
+    return pose[..., :3, 3] + (FLANGE_D + HAND_TCP_D) * rot[..., :, 2], rot
 
 
 def panda_tcp(q: np.ndarray) -> np.ndarray:
@@ -35,7 +51,4 @@ def panda_tcp(q: np.ndarray) -> np.ndarray:
     q = np.asarray(q, dtype=float)
     if q.shape != (7,):
         raise ValueError(f"panda_tcp needs 7 joint angles, got shape {q.shape}")
-    pose = np.eye(4)
-    for (a, d, alpha), theta in zip(_DH, q, strict=True):
-        pose = pose @ _link(a, d, alpha, theta)
-    return (pose @ np.array([0.0, 0.0, FLANGE_D + HAND_TCP_D, 1.0]))[:3]
+    return tcp_frame(q)[0]

@@ -38,6 +38,18 @@ def test_onnx_matches_torch_ddim_loop(untrained_student_checkpoint, tmp_path, st
     assert report["max_abs_err"] <= 1e-5
 
 
+def test_hand_pose_student_exports_with_its_kinematics_in_the_graph(tmp_path):
+    from tests.conftest import TINY_STUDENT
+    from trainer.student.cli import main as student_main
+
+    ckpt, out = tmp_path / "posed.pt", tmp_path / "posed.onnx"
+    assert student_main(["init", "--out", str(ckpt), "--hand-pose", *TINY_STUDENT]) == 0
+    assert export_main([str(ckpt), "--ddim-steps", "2", "--out", str(out)]) == 0
+    assert run_check(out, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
+    config = read_metadata(onnx.load(str(out))).training_data["student_config"]
+    assert json.loads(config)["hand_pose"] is True
+
+
 def test_check_cli_json(untrained_student_onnx):
     proc = subprocess.run([sys.executable, "-m", "export.check", str(untrained_student_onnx), "--json",
                            "--repeats", "2", "--threads", "1"], capture_output=True, text=True, check=True,

@@ -64,7 +64,7 @@ def test_init_starts_a_new_run_from_another_students_weights(small_demos, tmp_pa
     gt = tmp_path / "gt" / "ckpt.pt"
     assert fit_main(fit_args(small_demos, gt.parent, 3)) == 0
     source = checkpoint.load(gt)
-    start = warm_start(gt, source.config, checkpoint.TrainingInfo())
+    start = warm_start(gt, source.config, checkpoint.TrainingInfo(), DemoDataset(small_demos, "gt", 3, 16))
     assert start.step == 0 and start.optimizer is None
     assert start.info.data["init_sha256"] == checkpoint.sha256(gt)
     for name, value in source.ema.items():
@@ -78,6 +78,33 @@ def test_init_starts_a_new_run_from_another_students_weights(small_demos, tmp_pa
 
 
 @pytest.mark.slow
+def test_init_adds_the_hand_pose_to_a_student_without_it(small_demos, tmp_path):
+    """--hand-pose --init from a student without it starts as the same function (zero weights on the new
+    inputs) with the hand normaliser fitted to the demos; the other way round is refused."""
+    from dataclasses import replace
+
+    from trainer.student.model import hand_pose
+
+    plain = _fitted(small_demos, tmp_path)
+    source = checkpoint.load(plain)
+    data = DemoDataset(small_demos, "gt", 3, 16)
+    start = warm_start(plain, replace(source.config, hand_pose=True), checkpoint.TrainingInfo(), data)
+    before, after = source.policy().eval(), start.policy().eval()
+    batch = data.batch(np.arange(4))
+    x, k = torch.randn(4, 16, 8, generator=torch.Generator().manual_seed(0)), torch.tensor([1, 30, 60, 99])
+    with torch.no_grad():
+        torch.testing.assert_close(after(x, k, after.encode(batch.depth, batch.state)),
+                                   before(x, k, before.encode(batch.depth, batch.state)), atol=1e-6, rtol=0)
+        hands = hand_pose(torch.from_numpy(data.state)).numpy()
+    np.testing.assert_allclose(after.hand_norm.summary()["low"], hands.min(0), atol=1e-6)
+    assert start.model["state_mlp.0.weight"].shape[1] == 8 + 9
+    posed = tmp_path / "posed"
+    assert fit_main([*fit_args(small_demos, posed, 1), "--hand-pose", "--init", str(plain)]) == 0
+    assert checkpoint.load(posed / "ckpt.pt").config.hand_pose
+    with pytest.raises(FitError, match="--init"):
+        fit_main([*fit_args(small_demos, tmp_path / "back", 1), "--init", str(posed / "ckpt.pt")])
+
+
 def test_torchrun_two_gloo_processes(small_demos, tmp_path):
     out = tmp_path / "ddp"
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",

@@ -8,7 +8,7 @@ import torch
 from trainer.student import checkpoint
 from trainer.student.cli import main as student_main
 from trainer.student.config import StudentConfig, StudentConfigError
-from trainer.student.model import SpatialSoftmax, StudentPolicy
+from trainer.student.model import SpatialSoftmax, StudentPolicy, hand_pose
 
 TINY = StudentConfig(width=8, head_dims=(16, 32), state_features=16, step_features=16)
 
@@ -25,6 +25,35 @@ def test_noise_prediction_shape_and_conditioning():
     # the prediction must depend on the observation and on the diffusion step
     assert not torch.allclose(eps, net(x, k, net.encode(depth.flip(-1), state)))
     assert not torch.allclose(eps, net(x, torch.tensor([50, 10]), obs))
+
+
+def test_hand_pose_is_where_the_simulated_arm_puts_its_grasp_site():
+    """The network's forward kinematics (the published DH chain, in torch, with the model's joint-6 offset)
+    puts the hand where the simulated Panda's grasp site is, over poses around the ready pose."""
+    import numpy as np
+
+    from hil_sim.kinematics import ArmKinematics
+    from hil_sim.world import HOME_Q, TABLE_Z
+
+    kinematics = ArmKinematics()
+    rng = np.random.default_rng(0)
+    q = np.asarray(HOME_Q) + rng.uniform(-0.6, 0.6, (16, 7))
+    state = torch.from_numpy(np.column_stack([q, np.full(16, 0.08)]).astype(np.float32))
+    got = hand_pose(state).numpy()
+    sites = np.array([kinematics.site(np.r_[qi, 0.0, 0.0])[0] for qi in q]) - [0.0, 0.0, TABLE_Z]
+    np.testing.assert_allclose(got[:, :3], sites, atol=1e-3)
+    axes = got[:, 3:].reshape(16, 2, 3)
+    np.testing.assert_allclose(np.linalg.norm(axes, axis=-1), 1.0, atol=1e-5)
+    np.testing.assert_allclose((axes[:, 0] * axes[:, 1]).sum(-1), 0.0, atol=1e-5)
+
+
+def test_hand_pose_widens_the_state_input_only_when_asked():
+    plain, posed = StudentPolicy(TINY), StudentPolicy(StudentConfig(**{**TINY.__dict__, "hand_pose": True}))
+    assert plain.state_mlp[0].in_features == 8 and plain.hand_norm is None
+    assert posed.state_mlp[0].in_features == 8 + 9 and "hand_norm.centre" in posed.state_dict()
+    state = torch.randn(2, 8)
+    assert posed.encode(torch.rand(2, 3, 96, 128), state).shape == plain.encode(torch.rand(2, 3, 96, 128),
+                                                                                  state).shape
 
 
 def test_spatial_softmax_reads_where_the_peak_is():

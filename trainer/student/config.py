@@ -38,6 +38,10 @@ class StudentConfig:
     hand_target: bool = False
     """The training-only object head also reads, from depth, where the hand is relative to the object:
     object minus grasp site in x, y and the grasp site's height above the table (3 more outputs)."""
+    hand_pose: bool = False
+    """The state encoder also reads the hand's pose (position and two axes of its frame) computed from the
+    joint angles by the Panda's forward kinematics inside the network: the inputs stay (depth, state), and
+    the head need not learn the arm's kinematics from 1000 demos (docs/student.md "The oracle")."""
 
     def __post_init__(self) -> None:
         if self.width < 8 or self.width % 8:

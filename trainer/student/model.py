@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import nn
 
+from hil_sim.world import LIBFRANKA_FROM_MODEL_Q
+from runtime.franka_driver.kinematics import tcp_frame
 from trainer.student.config import StudentConfig
 from trainer.student.normaliser import RangeNormaliser
 
@@ -152,6 +155,17 @@ class ConditionalUnet1d(nn.Module):
         return self.final(x).transpose(1, 2)
 
 
+HAND_FEATURES = 9
+
+
+def hand_pose(state: torch.Tensor) -> torch.Tensor:
+    """Joint state [B, 8] -> [B, 9]: the hand's position (robot base frame, m) and the first two axes of its
+    frame, by the Panda's forward kinematics (traced into the graph as constants and trigonometry)."""
+    offset = torch.tensor(LIBFRANKA_FROM_MODEL_Q, dtype=state.dtype)
+    pos, rot = tcp_frame(state[:, :7] + offset, torch)
+    return torch.cat([pos, rot[..., 0], rot[..., 1]], dim=-1)
+
+
 class StudentPolicy(nn.Module):
     """epsilon_phi(a_k, k, obs) of paper eq. 10. States enter raw and are normalised inside; actions are
     handled in normalised units, ``action_norm`` converts them back to env units."""
@@ -161,9 +175,11 @@ class StudentPolicy(nn.Module):
         self.config = config
         self.state_norm = RangeNormaliser(config.state_dim)
         self.action_norm = RangeNormaliser(config.action_dim)
+        hand_features = HAND_FEATURES if config.hand_pose else 0
+        self.hand_norm = RangeNormaliser(HAND_FEATURES) if config.hand_pose else None
         self.encoder = ResNet18(config.obs_horizon, config.width, config.keypoints)
-        self.state_mlp = nn.Sequential(nn.Linear(config.state_dim, config.state_features), nn.ReLU(),
-                                       nn.Linear(config.state_features, config.state_features))
+        self.state_mlp = nn.Sequential(nn.Linear(config.state_dim + hand_features, config.state_features),
+                                       nn.ReLU(), nn.Linear(config.state_features, config.state_features))
         obs_dim = self.encoder.out_features + config.state_features
         self.head = ConditionalUnet1d(config.action_dim, obs_dim, config.head_dims, config.step_features)
         self.object_head = nn.Linear(self.encoder.out_features, 5 if config.hand_target else 2)
@@ -175,7 +191,24 @@ class StudentPolicy(nn.Module):
         return self.fuse(self.encoder(depth), state)
 
     def fuse(self, depth_features: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
-        return torch.cat([depth_features, self.state_mlp(self.state_norm.normalise(state))], dim=-1)
+        return torch.cat([depth_features, self.state_mlp(self.state_input(state))], dim=-1)
+
+    def state_input(self, state: torch.Tensor) -> torch.Tensor:
+        """Raw state [B, S] -> the state MLP's input: normalised state, then (``hand_pose``) the normalised
+        hand pose."""
+        x = self.state_norm.normalise(state)
+        if not self.config.hand_pose:
+            return x
+        return torch.cat([x, self.hand_norm.normalise(hand_pose(state))], dim=-1)
+
+    def fit_normalisers(self, state: np.ndarray, action: np.ndarray) -> None:
+        """Min-max statistics of the training demos' states, actions and (``hand_pose``) hand poses."""
+        self.state_norm.fit(state.min(0), state.max(0))
+        self.action_norm.fit(action.min(0), action.max(0))
+        if self.config.hand_pose:
+            with torch.no_grad():
+                hands = hand_pose(torch.from_numpy(np.asarray(state, np.float32))).numpy()
+            self.hand_norm.fit(hands.min(0), hands.max(0))
 
     def forward(self, noisy_actions: torch.Tensor, steps: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
         return self.head(noisy_actions, steps, obs)

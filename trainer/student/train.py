@@ -29,7 +29,7 @@ from trainer.student.checkpoint import Checkpoint, TrainingInfo
 from trainer.student.config import StudentConfig
 from trainer.student.data import DEPTH_ARRAYS, Batch, DemoDataset
 from trainer.student.ddim import training_scheduler
-from trainer.student.model import StudentPolicy
+from trainer.student.model import HAND_FEATURES, StudentPolicy
 
 CKPT_NAME = "ckpt.pt"
 
@@ -162,26 +162,41 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
                         control_rate_hz=data.control_rate_hz, trained=True,
                         data={**fingerprint, "command": " ".join(sys.argv)})
     if cfg.init:
-        return warm_start(Path(cfg.init), model_cfg, info)
+        return warm_start(Path(cfg.init), model_cfg, info, data)
     ckpt = checkpoint.fresh(model_cfg, info, seed=cfg.seed)
     net = StudentPolicy(model_cfg)
     net.load_state_dict(ckpt.model)
-    net.state_norm.fit(data.state.min(0), data.state.max(0))
-    net.action_norm.fit(data.action.min(0), data.action.max(0))
+    net.fit_normalisers(data.state, data.action)
     ckpt.model = net.state_dict()
     ckpt.ema = {k: v.clone() for k, v in ckpt.model.items()}
     return ckpt
 
 
-def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo) -> Checkpoint:
-    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights."""
+def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo, data: DemoDataset) -> Checkpoint:
+    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights. A student without
+    ``hand_pose`` may start a ``hand_pose`` run (``with_hand_pose``)."""
     source = checkpoint.load(init)
-    if source.config != model_cfg:
+    adds_hand_pose = model_cfg.hand_pose and not source.config.hand_pose
+    if replace(source.config, hand_pose=model_cfg.hand_pose) != model_cfg or (source.config.hand_pose
+                                                                              and not model_cfg.hand_pose):
         raise FitError(f"--init {init} is a {source.config}, not the requested {model_cfg}")
     info = replace(info, data={**info.data, "init": str(init.resolve()),
                                "init_sha256": checkpoint.sha256(init)})
-    return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in source.ema.items()},
-                      model={k: v.clone() for k, v in source.ema.items()})
+    weights = with_hand_pose(source.ema, model_cfg, data) if adds_hand_pose else source.ema
+    return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in weights.items()},
+                      model={k: v.clone() for k, v in weights.items()})
+
+
+def with_hand_pose(weights: dict[str, torch.Tensor], model_cfg: StudentConfig,
+                   data: DemoDataset) -> dict[str, torch.Tensor]:
+    """A ``hand_pose`` student's weights from one without: the state MLP's first layer gets zero weights for
+    the hand-pose inputs, so the network starts as the same function; the hand normaliser is fitted to
+    ``data``."""
+    net = StudentPolicy(model_cfg)
+    net.fit_normalisers(data.state, data.action)
+    first = "state_mlp.0.weight"
+    widened = torch.cat([weights[first], torch.zeros(weights[first].shape[0], HAND_FEATURES)], dim=1)
+    return {**net.state_dict(), **weights, first: widened}
 
 
 def plot_losses(losses: list[float], path: Path) -> None:
