@@ -38,12 +38,14 @@ def test_onnx_matches_torch_ddim_loop(untrained_student_checkpoint, tmp_path, st
     assert report["max_abs_err"] <= 1e-5
 
 
-def test_hand_pose_student_exports_with_its_kinematics_in_the_graph(tmp_path):
+@pytest.mark.parametrize("inputs", [["--hand-pose"], ["--hand-pose", "--object-offset"]])
+def test_hand_pose_student_exports_with_its_kinematics_in_the_graph(tmp_path, inputs):
+    """The forward kinematics (and with --object-offset the object head) are traced into the graph."""
     from tests.conftest import TINY_STUDENT
     from trainer.student.cli import main as student_main
 
     ckpt, out = tmp_path / "posed.pt", tmp_path / "posed.onnx"
-    assert student_main(["init", "--out", str(ckpt), "--hand-pose", *TINY_STUDENT]) == 0
+    assert student_main(["init", "--out", str(ckpt), *inputs, *TINY_STUDENT]) == 0
     assert export_main([str(ckpt), "--ddim-steps", "2", "--out", str(out)]) == 0
     assert run_check(out, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
     config = read_metadata(onnx.load(str(out))).training_data["student_config"]

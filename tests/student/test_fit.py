@@ -105,6 +105,31 @@ def test_init_adds_the_hand_pose_to_a_student_without_it(small_demos, tmp_path):
         fit_main([*fit_args(small_demos, tmp_path / "back", 1), "--init", str(posed / "ckpt.pt")])
 
 
+def test_object_offset_decodes_the_object_head_in_the_demos_units(small_demos, tmp_path):
+    """--object-offset: the object head's standardised estimate is turned back into metres with the same
+    statistics the training targets were standardised with, and the offset from the hand enters the state
+    MLP; it needs the hand pose and the object loss."""
+    from trainer.student.config import StudentConfigError
+    from trainer.student.model import hand_pose
+
+    out = tmp_path / "offset"
+    assert fit_main([*fit_args(small_demos, out, 1), "--hand-pose", "--object-offset",
+                     "--init", str(_fitted(small_demos, tmp_path))]) == 0
+    net = checkpoint.load(out / "ckpt.pt").policy()
+    data = DemoDataset(small_demos, "gt", 3, 16)
+    decoded = net.object_norm.unnormalise(torch.from_numpy(data.targets[:, :2]))
+    np.testing.assert_allclose(decoded.numpy(), data.raw_targets[:, :2], atol=1e-5)
+    with torch.no_grad():
+        offsets = data.raw_targets[:, :2] - hand_pose(torch.from_numpy(data.state))[:, :2].numpy()
+    np.testing.assert_allclose(net.offset_norm.summary()["low"], offsets.min(0), atol=1e-5)
+    assert net.state_mlp[0].in_features == 8 + 9 + 2
+    with pytest.raises(FitError, match="object-loss"):
+        fit_main([*fit_args(small_demos, tmp_path / "blind", 1), "--hand-pose", "--object-offset",
+                  "--object-loss", "0"])
+    with pytest.raises(StudentConfigError, match="hand_pose"):
+        fit_main([*fit_args(small_demos, tmp_path / "handless", 1), "--object-offset"])
+
+
 def test_torchrun_two_gloo_processes(small_demos, tmp_path):
     out = tmp_path / "ddp"
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",

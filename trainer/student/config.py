@@ -42,8 +42,13 @@ class StudentConfig:
     """The state encoder also reads the hand's pose (position and two axes of its frame) computed from the
     joint angles by the Panda's forward kinematics inside the network: the inputs stay (depth, state), and
     the head need not learn the arm's kinematics from 1000 demos (docs/student.md "The oracle")."""
+    object_offset: bool = False
+    """With ``hand_pose``: the state encoder also reads the object's horizontal offset from the hand, the
+    object head's estimate (then part of the exported graph) minus the hand's position."""
 
     def __post_init__(self) -> None:
+        if self.object_offset and not self.hand_pose:
+            raise StudentConfigError("object_offset needs hand_pose (the offset is from the hand)")
         if self.width < 8 or self.width % 8:
             raise StudentConfigError(f"width must be a positive multiple of 8, got {self.width}")
         if not self.head_dims or any(d < 8 or d % 8 for d in self.head_dims):

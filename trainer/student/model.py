@@ -18,6 +18,7 @@ from torch import nn
 from hil_sim.world import LIBFRANKA_FROM_MODEL_Q
 from runtime.franka_driver.kinematics import tcp_frame
 from trainer.student.config import StudentConfig
+from trainer.student.data import column_scale
 from trainer.student.normaliser import RangeNormaliser
 
 
@@ -158,6 +159,11 @@ class ConditionalUnet1d(nn.Module):
 HAND_FEATURES = 9
 
 
+def state_inputs(config: StudentConfig) -> int:
+    """Width of the state MLP's input: the state, the hand pose (9) and the object's offset from it (2)."""
+    return config.state_dim + HAND_FEATURES * config.hand_pose + 2 * config.object_offset
+
+
 def hand_pose(state: torch.Tensor) -> torch.Tensor:
     """Joint state [B, 8] -> [B, 9]: the hand's position (robot base frame, m) and the first two axes of its
     frame, by the Panda's forward kinematics (traced into the graph as constants and trigonometry)."""
@@ -175,10 +181,13 @@ class StudentPolicy(nn.Module):
         self.config = config
         self.state_norm = RangeNormaliser(config.state_dim)
         self.action_norm = RangeNormaliser(config.action_dim)
-        hand_features = HAND_FEATURES if config.hand_pose else 0
         self.hand_norm = RangeNormaliser(HAND_FEATURES) if config.hand_pose else None
+        self.object_norm = RangeNormaliser(2) if config.object_offset else None
+        """The object head's units (standardised table position) -> metres: centre = mean, half_range = std
+        of the training demos' object positions, as ``trainer.student.data.standardise``."""
+        self.offset_norm = RangeNormaliser(2) if config.object_offset else None
         self.encoder = ResNet18(config.obs_horizon, config.width, config.keypoints)
-        self.state_mlp = nn.Sequential(nn.Linear(config.state_dim + hand_features, config.state_features),
+        self.state_mlp = nn.Sequential(nn.Linear(state_inputs(config), config.state_features),
                                        nn.ReLU(), nn.Linear(config.state_features, config.state_features))
         obs_dim = self.encoder.out_features + config.state_features
         self.head = ConditionalUnet1d(config.action_dim, obs_dim, config.head_dims, config.step_features)
@@ -191,24 +200,40 @@ class StudentPolicy(nn.Module):
         return self.fuse(self.encoder(depth), state)
 
     def fuse(self, depth_features: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
-        return torch.cat([depth_features, self.state_mlp(self.state_input(state))], dim=-1)
+        return torch.cat([depth_features, self.state_mlp(self.state_input(depth_features, state))], dim=-1)
 
-    def state_input(self, state: torch.Tensor) -> torch.Tensor:
-        """Raw state [B, S] -> the state MLP's input: normalised state, then (``hand_pose``) the normalised
-        hand pose."""
+    def state_input(self, depth_features: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        """The state MLP's input: the normalised state, then (``hand_pose``) the normalised hand pose, then
+        (``object_offset``) the normalised offset of the object head's estimate from the hand."""
         x = self.state_norm.normalise(state)
         if not self.config.hand_pose:
             return x
-        return torch.cat([x, self.hand_norm.normalise(hand_pose(state))], dim=-1)
+        hand = hand_pose(state)
+        x = torch.cat([x, self.hand_norm.normalise(hand)], dim=-1)
+        if not self.config.object_offset:
+            return x
+        located = self.object_norm.unnormalise(self.object_head(depth_features)[:, :2])
+        return torch.cat([x, self.offset_norm.normalise(located - hand[:, :2])], dim=-1)
 
-    def fit_normalisers(self, state: np.ndarray, action: np.ndarray) -> None:
-        """Min-max statistics of the training demos' states, actions and (``hand_pose``) hand poses."""
+    def fit_normalisers(self, state: np.ndarray, action: np.ndarray,
+                        objects: np.ndarray | None = None) -> None:
+        """Statistics of the training demos: min-max of states, actions and (``hand_pose``) hand poses;
+        with ``object_offset`` also the object positions ``objects`` [N, 2] (mean, std) and their offsets
+        from the hand (min-max)."""
         self.state_norm.fit(state.min(0), state.max(0))
         self.action_norm.fit(action.min(0), action.max(0))
-        if self.config.hand_pose:
-            with torch.no_grad():
-                hands = hand_pose(torch.from_numpy(np.asarray(state, np.float32))).numpy()
-            self.hand_norm.fit(hands.min(0), hands.max(0))
+        if not self.config.hand_pose:
+            return
+        with torch.no_grad():
+            hands = hand_pose(torch.from_numpy(np.asarray(state, np.float32))).numpy()
+        self.hand_norm.fit(hands.min(0), hands.max(0))
+        if self.config.object_offset:
+            if objects is None:
+                raise ValueError("object_offset needs the demos' object positions")
+            mean, std = column_scale(objects)
+            self.object_norm.fit(mean - std, mean + std)
+            offsets = objects - hands[:, :2]
+            self.offset_norm.fit(offsets.min(0), offsets.max(0))
 
     def forward(self, noisy_actions: torch.Tensor, steps: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
         return self.head(noisy_actions, steps, obs)

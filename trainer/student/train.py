@@ -29,7 +29,7 @@ from trainer.student.checkpoint import Checkpoint, TrainingInfo
 from trainer.student.config import StudentConfig
 from trainer.student.data import DEPTH_ARRAYS, Batch, DemoDataset
 from trainer.student.ddim import training_scheduler
-from trainer.student.model import HAND_FEATURES, StudentPolicy
+from trainer.student.model import StudentPolicy
 
 CKPT_NAME = "ckpt.pt"
 
@@ -166,37 +166,46 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
     ckpt = checkpoint.fresh(model_cfg, info, seed=cfg.seed)
     net = StudentPolicy(model_cfg)
     net.load_state_dict(ckpt.model)
-    net.fit_normalisers(data.state, data.action)
+    fit_normalisers(net, data)
     ckpt.model = net.state_dict()
     ckpt.ema = {k: v.clone() for k, v in ckpt.model.items()}
     return ckpt
 
 
 def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo, data: DemoDataset) -> Checkpoint:
-    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights. A student without
-    ``hand_pose`` may start a ``hand_pose`` run (``with_hand_pose``)."""
+    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights. A student may gain the
+    ``hand_pose`` and ``object_offset`` inputs on the way (``with_state_inputs``), not lose them."""
     source = checkpoint.load(init)
-    adds_hand_pose = model_cfg.hand_pose and not source.config.hand_pose
-    if replace(source.config, hand_pose=model_cfg.hand_pose) != model_cfg or (source.config.hand_pose
-                                                                              and not model_cfg.hand_pose):
+    added = {name for name in STATE_INPUT_OPTIONS if getattr(model_cfg, name) != getattr(source.config, name)}
+    if (replace(source.config, **{name: getattr(model_cfg, name) for name in added}) != model_cfg
+            or any(getattr(source.config, name) for name in added)):
         raise FitError(f"--init {init} is a {source.config}, not the requested {model_cfg}")
     info = replace(info, data={**info.data, "init": str(init.resolve()),
                                "init_sha256": checkpoint.sha256(init)})
-    weights = with_hand_pose(source.ema, model_cfg, data) if adds_hand_pose else source.ema
+    weights = with_state_inputs(source.ema, model_cfg, data) if added else source.ema
     return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in weights.items()},
                       model={k: v.clone() for k, v in weights.items()})
 
 
-def with_hand_pose(weights: dict[str, torch.Tensor], model_cfg: StudentConfig,
-                   data: DemoDataset) -> dict[str, torch.Tensor]:
-    """A ``hand_pose`` student's weights from one without: the state MLP's first layer gets zero weights for
-    the hand-pose inputs, so the network starts as the same function; the hand normaliser is fitted to
-    ``data``."""
+STATE_INPUT_OPTIONS = ("hand_pose", "object_offset")
+
+
+def with_state_inputs(weights: dict[str, torch.Tensor], model_cfg: StudentConfig,
+                      data: DemoDataset) -> dict[str, torch.Tensor]:
+    """The weights of a student with more state inputs (``hand_pose``, ``object_offset``) from one with
+    fewer: the state MLP's first layer gets zero weights for the new inputs, so the network starts as the
+    same function; the new normalisers are fitted to ``data``."""
     net = StudentPolicy(model_cfg)
-    net.fit_normalisers(data.state, data.action)
+    fit_normalisers(net, data)
     first = "state_mlp.0.weight"
-    widened = torch.cat([weights[first], torch.zeros(weights[first].shape[0], HAND_FEATURES)], dim=1)
+    new_inputs = net.state_dict()[first].shape[1] - weights[first].shape[1]
+    widened = torch.cat([weights[first], torch.zeros(weights[first].shape[0], new_inputs)], dim=1)
     return {**net.state_dict(), **weights, first: widened}
+
+
+def fit_normalisers(net: StudentPolicy, data: DemoDataset) -> None:
+    objects = None if data.raw_targets is None else data.raw_targets[:, :2]
+    net.fit_normalisers(data.state, data.action, objects)
 
 
 def plot_losses(losses: list[float], path: Path) -> None:
@@ -225,6 +234,8 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
     data = DemoDataset(cfg.demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
                        model_cfg.hand_target)
+    if model_cfg.object_offset and not cfg.object_loss:
+        raise FitError("--object-offset reads the object head's estimate: it needs --object-loss > 0")
     if cfg.object_loss and data.targets is None:
         raise FitError(f"{cfg.demos} does not record object_xy for every episode; train with --object-loss 0")
     extra = object_frames(cfg, model_cfg, data)
