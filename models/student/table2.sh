@@ -14,6 +14,9 @@
 #                                       beside one on the scripted demos alone, and their clean cells
 #   models/student/table2.sh looking    more scripted demos, and the object head also on a student's recovery frames,
 #                                       each fine-tuned like `dart`, and their clean cells
+#   models/student/table2.sh handpose   the oracle (perfect perception, same head) with and without the hand's pose,
+#                                       then GT students given the hand's pose (and the object's offset from it),
+#                                       each fine-tuned like `dart`, and their clean cells
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -184,6 +187,33 @@ looking() {
     done
 }
 
+handpose() {
+    # docs/student.md "The oracle": models/student/oracle.py (60 episodes, execute 8 and 4 of each chunk), then
+    # the hand's pose by forward kinematics (and the object head's offset from it) as state inputs of the GT
+    # student, each the `dart` budget from gt_1000_obj1, against gt_more_8k.
+    local run exec
+    for run in "facts_8k" "hand_8k --hand"; do
+        set -- $run
+        [ -f "runs/student/oracle/$1/oracle.pt" ] || python models/student/oracle.py fit --out "runs/student/oracle/$1" "${@:2}"
+        for exec in 8 4; do
+            python models/student/oracle.py evaluate "runs/student/oracle/$1/oracle.pt" --episodes 60 --exec "$exec"
+        done
+    done
+    finetune gt_hp_8k runs/sim/demos_seen.zarr gt 1 --hand-pose &
+    finetune gt_hpo_8k runs/sim/demos_seen.zarr gt 1 --hand-pose --object-offset
+    wait
+    # the fine-tunes barely weight the new inputs: the same from scratch, as train.sh's GT student at 16000 steps
+    python -m trainer student fit --demos runs/sim/demos_seen.zarr --depth-source gt --out runs/student/gt_hpo_16k \
+        --object-loss 1 --steps 16000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 \
+        --threads 1 --ckpt-every 1000 --hand-pose --object-offset
+    python -m export runs/student/gt_hpo_16k/ckpt.pt --ddim-steps 4 --out runs/student/gt_hpo_16k.onnx
+    for objects in seen unseen; do
+        for name in gt_hp_8k gt_hpo_8k gt_hpo_16k; do
+            cell "$name" "runs/student/$name.onnx" none clean "$objects" 180 runs/table2/key
+        done
+    done
+}
+
 table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order of STUDENTS, then the reactive one);
            # a cell measured by `key` (180 episodes) replaces the smaller one
     local files=() key
@@ -199,4 +229,4 @@ table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order o
     python -m trainer table "${files[@]}" --base docs/table2.json --out docs/table2.json
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking [NAME...]}"
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose [NAME...]}"

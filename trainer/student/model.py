@@ -212,6 +212,7 @@ class StudentPolicy(nn.Module):
         x = torch.cat([x, self.hand_norm.normalise(hand)], dim=-1)
         if not self.config.object_offset:
             return x
+        # World-frame table position; the robot base sits at the world's x, y origin, so frames agree in x, y.
         located = self.object_norm.unnormalise(self.object_head(depth_features)[:, :2])
         return torch.cat([x, self.offset_norm.normalise(located - hand[:, :2])], dim=-1)
 

@@ -166,7 +166,7 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
     ckpt = checkpoint.fresh(model_cfg, info, seed=cfg.seed)
     net = StudentPolicy(model_cfg)
     net.load_state_dict(ckpt.model)
-    fit_normalisers(net, data)
+    fit_to_demos(net, data)
     ckpt.model = net.state_dict()
     ckpt.ema = {k: v.clone() for k, v in ckpt.model.items()}
     return ckpt
@@ -196,14 +196,15 @@ def with_state_inputs(weights: dict[str, torch.Tensor], model_cfg: StudentConfig
     fewer: the state MLP's first layer gets zero weights for the new inputs, so the network starts as the
     same function; the new normalisers are fitted to ``data``."""
     net = StudentPolicy(model_cfg)
-    fit_normalisers(net, data)
+    fit_to_demos(net, data)
     first = "state_mlp.0.weight"
     new_inputs = net.state_dict()[first].shape[1] - weights[first].shape[1]
     widened = torch.cat([weights[first], torch.zeros(weights[first].shape[0], new_inputs)], dim=1)
     return {**net.state_dict(), **weights, first: widened}
 
 
-def fit_normalisers(net: StudentPolicy, data: DemoDataset) -> None:
+def fit_to_demos(net: StudentPolicy, data: DemoDataset) -> None:
+    """The network's normalisation statistics from the training demos (object positions where recorded)."""
     objects = None if data.raw_targets is None else data.raw_targets[:, :2]
     net.fit_normalisers(data.state, data.action, objects)
 
