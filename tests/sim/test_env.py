@@ -7,6 +7,7 @@ import pytest
 
 from hil_sim.world import TABLE_Z
 from trainer.policies import Observation, PolicyError, make_policy
+from trainer.sim import env as env_module
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, perturb, run_episode
 from trainer.teacher.scripted import Phase
@@ -33,6 +34,21 @@ def test_reset_gives_documented_views(env: GraspEnv) -> None:
     assert obs[35] == pytest.approx(np.log(5))  # cube is category 5
     np.testing.assert_allclose(obs[36:39], pos - obs[18:21], atol=1e-6)
     assert obs[39] == -1.0
+
+
+def test_named_layout_slices_read_what_they_say(env: GraspEnv) -> None:
+    obs, _ = env.reset(seed=4, options={"kind": "banana"})
+    env.step(np.r_[np.full(7, 0.5), 1.0].astype(np.float32))  # moving, gripper commanded shut
+    obs = env.observation()
+    w = env.world
+    hand, hand_quat = w.ee_pose()
+    obj, obj_quat = w.object_pose()
+    fingers, finger_velocities = w.finger_state()
+    for name, expected in [("HAND_POSITION", hand), ("HAND_QUAT", hand_quat), ("OBJECT_POSITION", obj),
+                           ("OBJECT_QUAT", obj_quat), ("FINGERS", fingers),
+                           ("FINGER_VELOCITIES", finger_velocities), ("OBJECT_FROM_HAND", obj - hand),
+                           ("LOG_CATEGORY", np.log(4)), ("GRIPPER_COMMAND", 1.0)]:
+        np.testing.assert_allclose(obs[getattr(env_module, name)], expected, atol=1e-5, err_msg=name)
 
 
 def test_action_is_a_scaled_joint_delta(env: GraspEnv) -> None:

@@ -33,8 +33,16 @@ from trainer.sim.reward import Measures, RewardWeights, Status, reward
 
 OBS_DIM = 40
 ACTION_DIM = 8
+# The layout above by name: every reader of the 40 numbers indexes them with these.
+FINGERS = slice(7, 9)
+FINGER_VELOCITIES = slice(16, 18)
+HAND_POSITION = slice(18, 21)
+HAND_QUAT = slice(21, 25)
 OBJECT_POSITION = slice(25, 28)
+OBJECT_QUAT = slice(28, 32)
+LOG_CATEGORY = 35
 OBJECT_FROM_HAND = slice(36, 39)
+GRIPPER_COMMAND = 39
 
 
 @dataclass(frozen=True)

@@ -20,12 +20,11 @@ import mujoco
 import numpy as np
 
 from hil_sim.objects import BUILTIN
-from trainer.sim.env import OBS_DIM
+from trainer.sim.env import HAND_QUAT, LOG_CATEGORY, OBJECT_QUAT, OBS_DIM
 
 CATEGORIES = len(BUILTIN) + 1
 """One-hot width: the built-in category ids 1..12, then one slot for user objects (ids 13+)."""
 TEACHER_OBS_DIM = OBS_DIM + 2 + CATEGORIES
-_HAND_QUAT, _OBJ_QUAT, _LOG_CATEGORY = slice(21, 25), slice(28, 32), 35
 
 
 def axis_yaw(quat: np.ndarray, column: int) -> float:
@@ -42,9 +41,9 @@ def teacher_observation(obs: np.ndarray) -> np.ndarray:
     obs = np.asarray(obs, np.float32)
     if obs.shape != (OBS_DIM,):
         raise ValueError(f"teacher_observation: expected the env's {OBS_DIM}-d observation, got {obs.shape}")
-    e = axis_yaw(obs[_OBJ_QUAT], 0) - axis_yaw(obs[_HAND_QUAT], 1)
+    e = axis_yaw(obs[OBJECT_QUAT], 0) - axis_yaw(obs[HAND_QUAT], 1)
     category = np.zeros(CATEGORIES)
-    category[min(max(int(round(np.exp(obs[_LOG_CATEGORY]))), 1), CATEGORIES) - 1] = 1.0
+    category[min(max(int(round(np.exp(obs[LOG_CATEGORY]))), 1), CATEGORIES) - 1] = 1.0
     return np.concatenate([obs, [np.sin(2 * e), np.cos(2 * e)], category]).astype(np.float32)
 
 

@@ -20,11 +20,9 @@ import numpy as np
 
 from hil_sim.kinematics import ArmKinematics, rotation_error
 from hil_sim.world import TABLE_Z
+from trainer.sim.env import FINGER_VELOCITIES, FINGERS, GRIPPER_COMMAND, OBJECT_POSITION, OBJECT_QUAT
 
-_OBJ = slice(25, 28)
 _Goal = tuple[np.ndarray, np.ndarray, float]
-_OBJ_QUAT = slice(28, 32)
-_FINGERS, _FINGER_VEL, _GRIPPER = slice(7, 9), slice(16, 18), 39
 _ANGLE_TOL = 0.05
 """Hand angle from the goal orientation that counts as arrived (rad)."""
 _SHUT_M = 0.004
@@ -110,15 +108,15 @@ class ScriptedExpert:
     def _grasp_pose(self, priv: np.ndarray, rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Grasp-site position and top-down hand frame of the grasp on the object as it lies now."""
         c = self.config
-        obj = priv[_OBJ]
+        obj = priv[OBJECT_POSITION]
         height = max(obj[2] + c.pad_offset_m, obj[2] + self._extent[2] - c.palm_clearance_m,
                      TABLE_Z + c.tip_clearance_m)
-        return np.array([obj[0], obj[1], height]), _top_down(self._grasp_yaw(priv[_OBJ_QUAT], rot))
+        return np.array([obj[0], obj[1], height]), _top_down(self._grasp_yaw(priv[OBJECT_QUAT], rot))
 
     def _plan(self, priv: np.ndarray, ee: np.ndarray, rot: np.ndarray) -> _Goal:
         """Goal position and hand frame for this step, and the gripper command."""
         c = self.config
-        obj = priv[_OBJ]
+        obj = priv[OBJECT_POSITION]
         grasp, rot_goal = self._grasp_pose(priv, rot)
         self._count += 1
         if self._phase == Phase.APPROACH:
@@ -163,12 +161,12 @@ class ReactiveExpert(ScriptedExpert):
     def _plan(self, priv: np.ndarray, ee: np.ndarray, rot: np.ndarray) -> _Goal:
         c = self.config
         grasp, rot_goal = self._grasp_pose(priv, rot)
-        if priv[_GRIPPER] > 0 and _holding(priv, ee):
-            if np.abs(priv[_FINGER_VEL]).max() > c.finger_still_mps:
+        if priv[GRIPPER_COMMAND] > 0 and _holding(priv, ee):
+            if np.abs(priv[FINGER_VELOCITIES]).max() > c.finger_still_mps:
                 self._phase = Phase.CLOSE
                 return ee, rot, 1.0
             self._phase = Phase.LIFT
-            return self._target + ee - priv[_OBJ], rot, 1.0
+            return self._target + ee - priv[OBJECT_POSITION], rot, 1.0
         rel = ee - grasp
         angle = np.linalg.norm(rotation_error(rot, rot_goal))
         offset = np.linalg.norm(rel[:2])
@@ -187,9 +185,9 @@ class ReactiveExpert(ScriptedExpert):
 def _holding(priv: np.ndarray, ee: np.ndarray) -> bool:
     """The object is between the fingers (centre at most a fingertip's length, 7 cm, below the grasp site,
     fingers stopped short of shut)."""
-    rel = priv[_OBJ] - ee
+    rel = priv[OBJECT_POSITION] - ee
     return bool(np.linalg.norm(rel[:2]) < 0.03 and -0.07 < rel[2] < 0.03
-                and priv[_FINGERS].sum() > _SHUT_M)
+                and priv[FINGERS].sum() > _SHUT_M)
 
 
 def _top_down(yaw: float) -> np.ndarray:

@@ -23,7 +23,7 @@ import torch
 from stable_baselines3 import PPO
 from tqdm import tqdm
 
-from trainer.sim.env import OBS_DIM, EnvConfig, GraspEnv
+from trainer.sim.env import HAND_POSITION, OBS_DIM, EnvConfig, GraspEnv
 from trainer.teacher.normaliser import ARM_VELOCITIES, ObsNormaliser
 from trainer.teacher.observation import TeacherObservation
 from trainer.teacher.scripted import ReactiveExpert
@@ -32,7 +32,6 @@ Actor = Callable[[np.ndarray], np.ndarray]
 EVAL_SEED = 20_000
 """First seed of the held-out episodes of the learning curve: apart from the rounds' (1,000,000+) and from the
 evaluation sets of the docs (10,000+)."""
-_EE = slice(18, 21)
 RoundLog = Callable[[dict], None]
 
 
@@ -102,7 +101,8 @@ def labelled_episode(env: TeacherObservation, expert: ReactiveExpert, seed: int,
 
 
 def _stalled(history: list[np.ndarray], obs: np.ndarray, steps: int, metres: float) -> bool:
-    return len(history) >= steps and float(np.linalg.norm(obs[_EE] - history[-steps][_EE])) < metres
+    moved = obs[HAND_POSITION] - history[-steps][HAND_POSITION] if len(history) >= steps else np.inf
+    return float(np.linalg.norm(moved)) < metres
 
 
 def actor_success(env: TeacherObservation, actor: Actor, seeds: range) -> float:
