@@ -306,7 +306,8 @@ class ControlLoop:
         if state["fault"] != self._driver_fault:  # the driver's own safety verdicts: reported, not acted on
             self._driver_fault = state["fault"]
             self._report("driver", state["fault"] or "fault cleared")
-        return np.array([*state["q"], state["gripper"]], dtype=np.float32), {}
+        q = np.asarray(state["q"]) + self.policy.metadata.joint_offset_rad  # the angles it was trained on
+        return np.array([*q, state["gripper"]], dtype=np.float32), {}
 
     def _infer(self, obs: np.ndarray, state: np.ndarray, tick: Tick) -> dict[str, str]:
         self._chunk = None

@@ -7,9 +7,11 @@ is applied inside the graph; the statistics are repeated here so a reader can au
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET
 from runtime.preprocess import DepthSpec
 
 SCHEMA = "diffudepgrasp.policy/1"
@@ -40,6 +42,9 @@ class PolicyMetadata:
     """Statistics used inside the graph (e.g. state/action min and max), for audit."""
     training_data: dict[str, Any] = field(default_factory=dict)
     """Fingerprint of the demos, depth source (gt|randnoise|ddg|...), training command."""
+    joint_offset_rad: tuple[float, ...] = tuple(-x for x in HIL_SIM_Q_OFFSET)
+    """Added to the arm's joint angles as the robot reports them (libfranka's convention) to get the angles
+    the policy was trained on: those of hil_sim's Panda model, whose joint 6 reads pi/2 less."""
     trained: bool = False
     """False for the untrained fixtures that tests build; the runtime warns loudly when running one."""
     schema: str = SCHEMA
@@ -57,6 +62,8 @@ class PolicyMetadata:
         for name in ("obs_horizon", "ddim_steps", "state_dim", "action_dim"):
             if not getattr(self, name) >= 1:
                 raise MetadataError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not all(math.isfinite(x) for x in self.joint_offset_rad):
+            raise MetadataError(f"joint_offset_rad must be finite angles, got {self.joint_offset_rad}")
 
     def input_shapes(self) -> dict[str, list[int]]:
         """Static graph input shapes, batch 1."""
@@ -85,6 +92,8 @@ class PolicyMetadata:
         if unknown:
             raise MetadataError(f"unknown policy metadata fields {sorted(unknown)}")
         try:
+            if "joint_offset_rad" in d:
+                d["joint_offset_rad"] = tuple(d["joint_offset_rad"])
             return cls(**{**d, "preprocess": DepthSpec.from_dict(d.get("preprocess", {}))})
         except (TypeError, ValueError) as exc:
             raise MetadataError(f"invalid policy metadata: {exc}") from None

@@ -119,6 +119,9 @@ def _read_metadata(path: Path, session: ort.InferenceSession) -> PolicyMetadata:
         if getattr(meta, name) != want:
             raise PolicyError(f"{path}: metadata {name}={getattr(meta, name)}, the Panda runtime needs "
                               f"{want} (7 joints + gripper)")
+    if len(meta.joint_offset_rad) != DOF:
+        raise PolicyError(f"{path}: metadata joint_offset_rad has {len(meta.joint_offset_rad)} angles, the "
+                          f"Panda has {DOF} joints")
     return meta
 
 

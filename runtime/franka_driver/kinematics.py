@@ -20,6 +20,9 @@ _DH = np.array([
 ])
 FLANGE_D = 0.107
 HAND_TCP_D = 0.1034
+HIL_SIM_Q_OFFSET = (0.0, 0.0, 0.0, 0.0, 0.0, np.pi / 2, 0.0)
+"""libfranka's joint angles minus hil_sim's for the same pose: the Franka Kitchen MJCF that hil_sim's arm is
+built from turns link 6 a quarter turn from the DH frames above, so its joint 6 reads pi/2 less."""
 
 
 def link_transform(a: float, d: float, alpha: float, theta, xp=np):

@@ -15,13 +15,15 @@ import mujoco
 import numpy as np
 
 from runtime.franka_driver.backend import Reading
+from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET
 
 BASE_BODY = "robot_base"
 
 
 class MujocoBackend:
     """``Backend`` over a ``hil_sim.world.World`` (duck-typed: model, data, q, dq, gripper_opening,
-    set_targets)."""
+    set_targets). Joint angles cross it in libfranka's convention, as with the real arm: the model's joint 6
+    reads ``HIL_SIM_Q_OFFSET`` less."""
 
     def __init__(self, world: Any, lock: threading.Lock, *,
                  on_close: Callable[[], None] | None = None) -> None:
@@ -35,15 +37,16 @@ class MujocoBackend:
         self._scratch = mujoco.MjData(m)  # forward kinematics of targets, never of the live state
         self._gripper_closed = False
         self._on_close = on_close
+        self._offset = np.asarray(HIL_SIM_Q_OFFSET)
 
     def read(self) -> Reading:
         with self.lock:
             q, dq, width = self.world.q, self.world.dq, self.world.gripper_opening
-        return Reading(time.monotonic(), q, dq, width)
+        return Reading(time.monotonic(), q + self._offset, dq, width)
 
     def command(self, *, q_target: np.ndarray, gripper_closed: bool) -> None:
         with self.lock:
-            self.world.set_targets(q_target, 1.0 if gripper_closed else -1.0)
+            self.world.set_targets(np.asarray(q_target) - self._offset, 1.0 if gripper_closed else -1.0)
         self._gripper_closed = gripper_closed
 
     def hold(self) -> None:
@@ -52,7 +55,7 @@ class MujocoBackend:
 
     def tcp(self, q: np.ndarray) -> np.ndarray:
         d = self._scratch
-        d.qpos[self._qadr] = q
+        d.qpos[self._qadr] = np.asarray(q) - self._offset
         mujoco.mj_kinematics(self.world.model, d)
         return d.site_xpos[self._site] - d.xpos[self._base]
 

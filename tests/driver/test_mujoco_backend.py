@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from hil_sim.world import HOME_Q, TABLE_Z, World
-from runtime.franka_driver.limits import READY_Q
+from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET, panda_tcp
+from runtime.franka_driver.limits import Q_MAX, Q_MIN, READY_Q
 from runtime.franka_driver.mujoco_backend import MujocoBackend
 
 
@@ -21,26 +22,35 @@ def world():
     w.close()
 
 
-def test_tcp_is_the_models_end_effector_in_the_base_frame(world):
+LIBFRANKA_HOME = np.asarray(HOME_Q) + HIL_SIM_Q_OFFSET
+
+
+def test_tcp_is_the_models_end_effector_in_the_base_frame_and_the_real_arms(world):
+    """The backend takes libfranka's angles: its FK is the model's grasp site at the model's angles, and the
+    real backend's DH FK (``panda_tcp``) at the same libfranka angles."""
     backend = MujocoBackend(world, threading.Lock())
-    for q in (np.asarray(HOME_Q), READY_Q, READY_Q + 0.2):
-        world.data.qpos[backend._qadr] = q
+    for q in (LIBFRANKA_HOME, READY_Q, READY_Q + 0.2):
+        world.data.qpos[backend._qadr] = q - HIL_SIM_Q_OFFSET
         mujoco.mj_kinematics(world.model, world.data)
         expected = world.ee_pose()[0] - np.array([0.0, 0.0, TABLE_Z])
         assert np.allclose(backend.tcp(q), expected, atol=1e-9)
+        assert np.allclose(backend.tcp(q), panda_tcp(q), atol=1e-3)
     world.reset("cube", 0, randomise=False)
 
 
 def test_command_sets_actuator_targets_and_hold_freezes_at_measured_pose(world):
     backend = MujocoBackend(world, threading.Lock())
-    target = np.asarray(HOME_Q) + 0.05
+    assert np.allclose(backend.read().q, world.q + HIL_SIM_Q_OFFSET)  # libfranka's angles on the wire
+    assert np.all((backend.read().q >= Q_MIN) & (backend.read().q <= Q_MAX))  # the ready pose is in limits
+    target = LIBFRANKA_HOME + 0.05
     backend.command(q_target=target, gripper_closed=True)
-    assert np.allclose(world.data.ctrl[:7], target) and np.all(world.data.ctrl[7:9] == 0.0)
+    assert np.allclose(world.data.ctrl[:7], target - HIL_SIM_Q_OFFSET) and np.all(world.data.ctrl[7:9] == 0.0)
     world.step(0.5)
     reading = backend.read()
     assert np.abs(reading.q - target).max() < 0.02 and reading.gripper_width < 0.08
     backend.hold()
-    assert np.allclose(world.data.ctrl[:7], reading.q) and np.all(world.data.ctrl[7:9] == 0.0)  # grip kept
+    assert np.allclose(world.data.ctrl[:7], reading.q - HIL_SIM_Q_OFFSET)
+    assert np.all(world.data.ctrl[7:9] == 0.0)  # grip kept
 
 
 def test_driver_package_imports_neither_hil_sim_nor_torch():

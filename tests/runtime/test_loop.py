@@ -61,6 +61,16 @@ def test_action_chunks_execute_one_action_per_tick():
         assert cmd["t_capture"] == tick["t_capture"]
 
 
+def test_policy_sees_the_angles_it_was_trained_on_and_commands_stay_the_robots():
+    """The robot reports libfranka's angles; the policy gets them plus its metadata's joint offset (hil_sim's
+    joint 6 reads pi/2 less); the deltas it returns are added to the robot's own angles."""
+    code, _, commands, _, _, policy = _run(seconds=0.5)
+    offset = np.asarray(policy.metadata.joint_offset_rad)
+    assert code == EXIT_OK and offset[5] == pytest.approx(-np.pi / 2) and not offset[[0, 1, 2, 3, 4, 6]].any()
+    np.testing.assert_allclose(policy.states[0][:7], READY_Q + offset, atol=1e-6)
+    np.testing.assert_allclose(commands[0]["q_target"][1:] - READY_Q[1:], DELTA, atol=1e-6)
+
+
 def test_slow_inference_makes_late_ticks_skips_and_never_bursts():
     slow = lambda c: FakePolicy(c, delay=1.6 * P, exec_horizon=6)  # noqa: E731
     code, ticks, commands, loop, _, policy = _run(policy=slow, seconds=6.0)

@@ -47,6 +47,7 @@ def test_untrained_policy_warns(tmp_path, capsys):
     (lambda p: handmade.build(p, meta_json=handmade.meta_dict(schema=None)), "schema"),
     (lambda p: handmade.build(p, meta_json=handmade.meta_dict(surprise=1)), "unknown"),
     (lambda p: handmade.build(p, meta=handmade.metadata(state_dim=9)), "state_dim=9"),
+    (lambda p: handmade.build(p, meta=handmade.metadata(joint_offset_rad=(0.0,) * 6)), "6 angles"),
     (lambda p: handmade.build(p, horizon=8), "noise has shape"),
 ])
 def test_bad_policy_files_are_refused_naming_file_and_problem(tmp_path, make, match):
