@@ -24,7 +24,6 @@ import mujoco  # noqa: E402
 
 from hil_sim import objects  # noqa: E402
 from hil_sim.camera import DepthCamera, Intrinsics, d455_intrinsics, extrinsics, look_at_quat  # noqa: E402
-from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET  # noqa: E402
 from runtime.preprocess import DepthSpec  # noqa: E402
 
 TABLE_Z = 0.75
@@ -33,11 +32,8 @@ WORKSPACE_Y = (-0.20, 0.20)
 CAMERA_POS = (1.30, 0.20, TABLE_Z + 0.60)
 CAMERA_TARGET = (0.50, 0.0, TABLE_Z + 0.18)
 HOME_Q = (0.0, -0.30, 0.0, -2.20, 0.0, 0.35, 0.0)
-"""Ready pose: hand about 40 cm above the table centre, pointing down (found with the expert's IK)."""
-LIBFRANKA_FROM_MODEL_Q = HIL_SIM_Q_OFFSET
-"""Add to this model's arm angles to get libfranka's (the grasp site then matches
-``runtime.franka_driver.kinematics.tcp_frame`` to 0.1 mm over the workspace). Policies see this model's
-angles in training; the MuJoCo driver backend speaks libfranka's, as the real arm does."""
+"""Ready pose: hand about 40 cm above the table centre, pointing down (found with the expert's IK). In this
+model's angles, as every joint angle in hil_sim; libfranka's add ``kinematics.HIL_SIM_Q_OFFSET``."""
 GRIPPER_OPEN_M = 0.04
 """Per-finger travel; the gripper opening (state[7]) is the sum of both fingers, 0..0.08 m."""
 FINGER_KP = 1500.0

@@ -15,8 +15,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from hil_sim.world import LIBFRANKA_FROM_MODEL_Q
-from runtime.franka_driver.kinematics import tcp_frame
+from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET, tcp_frame
 from trainer.student.config import StudentConfig
 from trainer.student.data import column_scale
 from trainer.student.normaliser import RangeNormaliser
@@ -166,8 +165,9 @@ def state_inputs(config: StudentConfig) -> int:
 
 def hand_pose(state: torch.Tensor) -> torch.Tensor:
     """Joint state [B, 8] -> [B, 9]: the hand's position (robot base frame, m) and the first two axes of its
-    frame, by the Panda's forward kinematics (traced into the graph as constants and trigonometry)."""
-    offset = torch.tensor(LIBFRANKA_FROM_MODEL_Q, dtype=state.dtype)
+    frame, by the Panda's forward kinematics (traced into the graph as constants and trigonometry) of the
+    simulator's joint angles, which the students are trained on, made libfranka's."""
+    offset = torch.tensor(HIL_SIM_Q_OFFSET, dtype=state.dtype)
     pos, rot = tcp_frame(state[:, :7] + offset, torch)
     return torch.cat([pos, rot[..., 0], rot[..., 1]], dim=-1)
 
