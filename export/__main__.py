@@ -1,16 +1,18 @@
-"""``python -m export CHECKPOINT --ddim-steps K --out student.onnx [--int8]``."""
+"""``python -m export CHECKPOINT --ddim-steps K --out student.onnx [--exec-horizon N] [--int8]``."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import onnx
 
 from export.graph import build_model
 from trainer.student import checkpoint
+from trainer.student.config import StudentConfigError
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -19,6 +21,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("checkpoint", type=Path, help="student checkpoint (.pt) from `trainer student fit|init`")
     p.add_argument("--ddim-steps", type=int, default=4, help="DDIM updates unrolled in the graph (default 4)")
     p.add_argument("--out", type=Path, default=Path("student.onnx"), help="output ONNX file")
+    p.add_argument("--exec-horizon", type=int, default=None,
+                   help="actions the runtime executes from each chunk before re-planning (default: the "
+                   "checkpoint's, 8 of 16); fewer re-plans more often")
     p.add_argument("--int8", action="store_true",
                    help="static QDQ int8 quantisation of the encoder; kept only if faster and accurate")
     return p.parse_args(argv)
@@ -28,7 +33,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         ckpt = checkpoint.load(args.checkpoint)
-    except checkpoint.CheckpointError as exc:
+        if args.exec_horizon is not None:
+            ckpt = replace(ckpt, config=replace(ckpt.config, exec_horizon=args.exec_horizon))
+    except (checkpoint.CheckpointError, StudentConfigError) as exc:
         print(f"export: {exc}", file=sys.stderr)
         return 2
     model, meta = build_model(ckpt, args.checkpoint, args.ddim_steps)

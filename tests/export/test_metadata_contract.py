@@ -46,3 +46,13 @@ def test_runtime_refuses_wrong_metadata(untrained_student_onnx, tmp_path, edit, 
     rewrite_metadata(untrained_student_onnx, bad, edit)
     with pytest.raises(PolicyError, match=match):
         Policy(bad)
+
+
+def test_exec_horizon_is_chosen_at_export(untrained_student_checkpoint, tmp_path, capsys):
+    from export.__main__ import main as export_main
+
+    out = tmp_path / "exec4.onnx"
+    assert export_main([str(untrained_student_checkpoint), "--exec-horizon", "4", "--out", str(out)]) == 0
+    assert Policy(out).metadata.exec_horizon == 4
+    assert export_main([str(untrained_student_checkpoint), "--exec-horizon", "17", "--out", str(out)]) == 2
+    assert "exec_horizon 17" in capsys.readouterr().err
