@@ -3,10 +3,13 @@ replaced by the episode's true object facts (table position, cos/sin of twice it
 1-D U-Net head, state MLP, eq. 10 loss, EMA and DDIM sampling, trained on the same demos; then run closed loop
 in the simulated world without rendering depth (seen kinds, seeds 10000.., randomised episodes). If it too
 misses, the head, not perception, is what fails. ``--hand`` adds the hand's pose by forward kinematics of the
-joint state (``trainer.student.model.hand_pose``) and the object's offset from the hand.
+joint state (``trainer.student.model.hand_pose``) and the object's offset from the hand. ``--facts-noise-cm``
+says how precisely perception must place the object: the oracle then gets the object's position off by a
+random error, one per episode.
 
     python models/student/oracle.py fit --out runs/student/oracle/facts [--hand] [--steps 8000]
-    python models/student/oracle.py evaluate runs/student/oracle/facts/oracle.pt --episodes 60 [--exec 8]
+    python models/student/oracle.py evaluate runs/student/oracle/facts/oracle.pt --episodes 60 [--exec 8] \
+        [--facts-noise-cm 1.5]
 """
 
 from __future__ import annotations
@@ -115,17 +118,20 @@ def fit(args: argparse.Namespace) -> None:
 class OraclePolicy:
     """The trained oracle as a ``trainer.policies`` policy: K DDIM steps, ``exec_horizon`` actions a chunk."""
 
-    def __init__(self, path: str, ddim_steps: int, exec_horizon: int) -> None:
+    def __init__(self, path: str, ddim_steps: int, exec_horizon: int, facts_noise_cm: float = 0.0) -> None:
         saved = torch.load(path, weights_only=True)
         self.config = StudentConfig.from_json(saved["config"])
         self.net = Oracle(self.config, saved["hand"]).eval()
         self.net.load_state_dict(saved["ema"])
         self.plan, self.exec_horizon = ddim_plan(self.config.train_timesteps, ddim_steps), exec_horizon
         self.generator = torch.Generator().manual_seed(0)
+        self.facts_noise, self.rng = facts_noise_cm / 100, np.random.default_rng(0)
         self.facts, self.queue = None, []
 
     def reset(self, env_info: dict) -> None:
-        self.facts = torch.from_numpy(object_facts(env_info["episode"], env_info["kind"]))[None]
+        facts = object_facts(env_info["episode"], env_info["kind"])
+        facts[:2] += self.rng.normal(0.0, self.facts_noise, 2)  # one error per episode, like a student's
+        self.facts = torch.from_numpy(facts)[None]
         self.queue = []
 
     @torch.no_grad()
@@ -145,12 +151,13 @@ class OraclePolicy:
 def evaluate(args: argparse.Namespace) -> None:
     torch.set_num_threads(1)
     env = GraspEnv(EnvConfig(objects=KINDS, render_depth=False))
-    policy = OraclePolicy(args.checkpoint, args.ddim_steps, args.exec)
+    policy = OraclePolicy(args.checkpoint, args.ddim_steps, args.exec, args.facts_noise_cm)
     runs = [run_episode(env, policy, Job(10_000 + i, KINDS[i % len(KINDS)])) for i in range(args.episodes)]
     wins = np.array([r.success for r in runs])
     closes = np.array([r.closed_at[1] for r in runs if r.closed_at is not None]) * 100
     aside = np.median(np.hypot(closes[:, 0], closes[:, 1]))
-    print(f"{args.checkpoint} (execute {args.exec} of each chunk): success {wins.mean():.3f} "
+    print(f"{args.checkpoint} (execute {args.exec} of each chunk, object position off by N(0, "
+          f"{args.facts_noise_cm} cm) per axis): success {wins.mean():.3f} "
           f"({wins.sum()}/{len(wins)}); object - hand at the first close, mean {closes.mean(0).round(2)} "
           f"std {closes.std(0).round(2)} cm, horizontal median {aside:.2f} cm")
 
@@ -170,6 +177,8 @@ def main() -> None:
     e.add_argument("--episodes", type=int, default=60)
     e.add_argument("--ddim-steps", type=int, default=4)
     e.add_argument("--exec", type=int, default=8, help="actions executed from each chunk")
+    e.add_argument("--facts-noise-cm", type=float, default=0.0,
+                   help="std of an error added to the object's table x and y, drawn once per episode")
     args = p.parse_args()
     fit(args) if args.command == "fit" else evaluate(args)
 

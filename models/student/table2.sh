@@ -192,12 +192,16 @@ handpose() {
     # the hand's pose by forward kinematics (and the object head's offset from it) as state inputs of the GT
     # student, each the `dart` budget from gt_1000_obj1, against gt_more_8k.
     local run exec
-    for run in "facts_8k" "hand_8k --hand"; do
+    for run in "facts_8k" "hand_8k --hand" "facts_24k --steps 24000" "hand_24k --hand --steps 24000"; do
         set -- $run
         [ -f "runs/student/oracle/$1/oracle.pt" ] || python models/student/oracle.py fit --out "runs/student/oracle/$1" "${@:2}"
         for exec in 8 4; do
             python models/student/oracle.py evaluate "runs/student/oracle/$1/oracle.pt" --episodes 60 --exec "$exec"
         done
+    done
+    for noise in 0.5 1 1.5 2 3; do  # how precisely perception must place the object
+        python models/student/oracle.py evaluate runs/student/oracle/hand_24k/oracle.pt --episodes 60 --exec 4 \
+            --facts-noise-cm "$noise"
     done
     finetune gt_hp_8k runs/sim/demos_seen.zarr gt 1 --hand-pose &
     finetune gt_hpo_8k runs/sim/demos_seen.zarr gt 1 --hand-pose --object-offset
@@ -207,11 +211,14 @@ handpose() {
         --object-loss 1 --steps 16000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 \
         --threads 1 --ckpt-every 1000 --hand-pose --object-offset
     python -m export runs/student/gt_hpo_16k/ckpt.pt --ddim-steps 4 --out runs/student/gt_hpo_16k.onnx
+    python -m export runs/student/gt_hpo_16k/ckpt.pt --ddim-steps 4 --exec-horizon 4 --out runs/student/gt_hpo_16k_x4.onnx
     for objects in seen unseen; do
-        for name in gt_hp_8k gt_hpo_8k gt_hpo_16k; do
+        for name in gt_hp_8k gt_hpo_8k gt_hpo_16k gt_hpo_16k_x4; do
             cell "$name" "runs/student/$name.onnx" none clean "$objects" 180 runs/table2/key
         done
     done
+    python models/student/diagnose.py locate student:runs/student/gt_hpo_16k.onnx \
+        --checkpoint runs/student/gt_hpo_16k/ckpt.pt --episodes 30
 }
 
 table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order of STUDENTS, then the reactive one);
