@@ -220,14 +220,15 @@ handpose() {
     python models/student/diagnose.py locate student:runs/student/gt_hpo_16k.onnx \
         --checkpoint runs/student/gt_hpo_16k/ckpt.pt --episodes 30
     # longer training helps the oracle: 8000 more steps from gt_hpo_16k (object loss 1, and 10 to sharpen the
-    # object estimate), then 16000 more from the first, twice; options after finetune's own replace them (argparse)
+    # object estimate), then 16000 more from the first, three times; options after finetune's own replace them (argparse)
     local hpo="runs/sim/demos_seen.zarr gt 1 --hand-pose --object-offset"
     finetune gt_hpo_more_8k $hpo --init runs/student/gt_hpo_16k/ckpt.pt &
     finetune gt_hpo_obj10_8k $hpo --init runs/student/gt_hpo_16k/ckpt.pt --object-loss 10
     wait
     finetune gt_hpo_more_24k $hpo --init runs/student/gt_hpo_more_8k/ckpt.pt --steps 16000
     finetune gt_hpo_more_40k $hpo --init runs/student/gt_hpo_more_24k/ckpt.pt --steps 16000
-    for name in gt_hpo_more_8k gt_hpo_obj10_8k gt_hpo_more_24k gt_hpo_more_40k; do
+    finetune gt_hpo_more_56k $hpo --init runs/student/gt_hpo_more_40k/ckpt.pt --steps 16000
+    for name in gt_hpo_more_8k gt_hpo_obj10_8k gt_hpo_more_24k gt_hpo_more_40k gt_hpo_more_56k; do
         python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
         python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
             --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
