@@ -238,6 +238,30 @@ handpose() {
     done
 }
 
+finegrid() {
+    # docs/student.md "A finer keypoint grid": gt_hpo_16k (handpose's command) beside the same with 32 more
+    # keypoints from the encoder's stride-8 stage, one core each; the object head's error offline on 60
+    # held-out demos (seeds 50000..), then in closed loop by the hand's height
+    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
+        --workers 2 --out runs/student/heldout_60.zarr
+    local fk name
+    for fk in 0 32; do
+        name=gt_hpo_16k
+        [ "$fk" = 0 ] || name=gt_hpof_16k
+        python -m trainer student fit --demos runs/sim/demos_seen.zarr --depth-source gt --out "runs/student/$name" \
+            --object-loss 1 --steps 16000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 \
+            --threads 1 --ckpt-every 1000 --hand-pose --object-offset --fine-keypoints "$fk" &
+    done
+    wait
+    for name in gt_hpo_16k gt_hpof_16k; do
+        python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
+        python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos runs/student/heldout_60.zarr \
+            --checkpoint "runs/student/$name/ckpt.pt"
+        python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
+            --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
+    done
+}
+
 table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order of STUDENTS, then the reactive one);
            # a cell measured by `key` (180 episodes) replaces the smaller one
     local files=() key
@@ -253,4 +277,4 @@ table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order o
     python -m trainer table "${files[@]}" --base docs/table2.json --out docs/table2.json
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose [NAME...]}"
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|finegrid [NAME...]}"

@@ -39,7 +39,8 @@ def test_onnx_matches_torch_ddim_loop(untrained_student_checkpoint, tmp_path, st
 
 
 @pytest.mark.parametrize("inputs", [["--hand-pose"], ["--hand-pose", "--object-offset"],
-                                    ["--hand-pose", "--object-offset", "--fine-keypoints", "4"]])
+                                    ["--hand-pose", "--object-offset", "--fine-keypoints", "4"],
+                                    ["--hand-target", "--seen-offset"]])
 def test_hand_pose_student_exports_with_its_kinematics_in_the_graph(tmp_path, inputs):
     """The forward kinematics (and with --object-offset the object head) are traced into the graph."""
     from tests.conftest import TINY_STUDENT
@@ -50,7 +51,7 @@ def test_hand_pose_student_exports_with_its_kinematics_in_the_graph(tmp_path, in
     assert export_main([str(ckpt), "--ddim-steps", "2", "--out", str(out)]) == 0
     assert run_check(out, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
     config = read_metadata(onnx.load(str(out))).training_data["student_config"]
-    assert json.loads(config)["hand_pose"] is True
+    assert json.loads(config)["hand_pose"] is ("--hand-pose" in inputs)
 
 
 def test_check_cli_json(untrained_student_onnx):

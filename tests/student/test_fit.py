@@ -130,6 +130,25 @@ def test_object_offset_decodes_the_object_head_in_the_demos_units(small_demos, t
         fit_main([*fit_args(small_demos, tmp_path / "handless", 1), "--object-offset"])
 
 
+def test_seen_offset_feeds_the_object_heads_own_offset_reading(small_demos, tmp_path):
+    """--seen-offset: the object head's estimate of object minus hand (its outputs 2:4, standardised as the
+    hand-target loss is) enters the state MLP after the other inputs; it needs --hand-target."""
+    from trainer.student.config import StudentConfigError
+
+    out = tmp_path / "seen"
+    assert fit_main([*fit_args(small_demos, out, 1), "--hand-target", "--hand-pose", "--seen-offset"]) == 0
+    net = checkpoint.load(out / "ckpt.pt").policy()
+    assert net.state_mlp[0].in_features == 8 + 9 + 2
+    data = DemoDataset(small_demos, "gt", 3, 16, hand_target=True)
+    batch = data.batch(np.arange(4))
+    with torch.no_grad():
+        features = net.encoder(batch.depth)
+        torch.testing.assert_close(net.state_input(features, batch.state)[:, -2:],
+                                   net.object_head(features)[:, 2:4], rtol=0, atol=0)
+    with pytest.raises(StudentConfigError, match="hand_target"):
+        fit_main([*fit_args(small_demos, tmp_path / "headless", 1), "--seen-offset"])
+
+
 def test_torchrun_two_gloo_processes(small_demos, tmp_path):
     out = tmp_path / "ddp"
     cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",

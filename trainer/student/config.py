@@ -49,7 +49,14 @@ class StudentConfig:
     """With ``hand_pose``: the state encoder also reads the object's horizontal offset from the hand, the
     object head's estimate (then part of the exported graph) minus the hand's position."""
 
+    seen_offset: bool = False
+    """With ``hand_target``: the state encoder also reads the object head's estimate of the object's offset
+    from the hand, read off the depth image where both are seen (no camera-pose error, unlike the absolute
+    position that ``object_offset`` starts from); then part of the exported graph."""
+
     def __post_init__(self) -> None:
+        if self.seen_offset and not self.hand_target:
+            raise StudentConfigError("seen_offset needs hand_target (the head's offset outputs)")
         if self.object_offset and not self.hand_pose:
             raise StudentConfigError("object_offset needs hand_pose (the offset is from the hand)")
         if self.width < 8 or self.width % 8:

@@ -165,8 +165,10 @@ HAND_FEATURES = 9
 
 
 def state_inputs(config: StudentConfig) -> int:
-    """Width of the state MLP's input: the state, the hand pose (9) and the object's offset from it (2)."""
-    return config.state_dim + HAND_FEATURES * config.hand_pose + 2 * config.object_offset
+    """Width of the state MLP's input: the state, the hand pose (9) and the object's offset from it (2 for
+    each of ``object_offset`` and ``seen_offset``)."""
+    offsets = config.object_offset + config.seen_offset
+    return config.state_dim + HAND_FEATURES * config.hand_pose + 2 * offsets
 
 
 def hand_pose(state: torch.Tensor) -> torch.Tensor:
@@ -210,17 +212,22 @@ class StudentPolicy(nn.Module):
 
     def state_input(self, depth_features: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """The state MLP's input: the normalised state, then (``hand_pose``) the normalised hand pose, then
-        (``object_offset``) the normalised offset of the object head's estimate from the hand."""
-        x = self.state_norm.normalise(state)
-        if not self.config.hand_pose:
-            return x
-        hand = hand_pose(state)
-        x = torch.cat([x, self.hand_norm.normalise(hand)], dim=-1)
-        if not self.config.object_offset:
-            return x
-        # World-frame table position; the robot base sits at the world's x, y origin, so frames agree in x, y.
-        located = self.object_norm.unnormalise(self.object_head(depth_features)[:, :2])
-        return torch.cat([x, self.offset_norm.normalise(located - hand[:, :2])], dim=-1)
+        (``object_offset``) the normalised offset of the object head's estimate from the hand, then
+        (``seen_offset``) the object head's own reading of that offset, in its standardised units."""
+        parts = [self.state_norm.normalise(state)]
+        if self.config.hand_pose:
+            hand = hand_pose(state)
+            parts.append(self.hand_norm.normalise(hand))
+        if not (self.config.object_offset or self.config.seen_offset):
+            return torch.cat(parts, dim=-1)
+        estimate = self.object_head(depth_features)
+        if self.config.object_offset:
+            # world-frame table position; the robot base is at the world's x, y origin, so frames agree
+            located = self.object_norm.unnormalise(estimate[:, :2])
+            parts.append(self.offset_norm.normalise(located - hand[:, :2]))
+        if self.config.seen_offset:
+            parts.append(estimate[:, 2:4])
+        return torch.cat(parts, dim=-1)
 
     def fit_normalisers(self, state: np.ndarray, action: np.ndarray,
                         objects: np.ndarray | None = None) -> None:

@@ -235,8 +235,9 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
     data = DemoDataset(cfg.demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
                        model_cfg.hand_target)
-    if model_cfg.object_offset and not cfg.object_loss:
-        raise FitError("--object-offset reads the object head's estimate: it needs --object-loss > 0")
+    if (model_cfg.object_offset or model_cfg.seen_offset) and not cfg.object_loss:
+        raise FitError("--object-offset and --seen-offset read the object head's estimate: they need "
+                       "--object-loss > 0")
     if cfg.object_loss and data.targets is None:
         raise FitError(f"{cfg.demos} does not record object_xy for every episode; train with --object-loss 0")
     extra = object_frames(cfg, model_cfg, data)
