@@ -64,6 +64,11 @@ cell() {  # name model restore sensor objects episodes [folder]
         --episodes "$6" --workers "${WORKERS:-2}" --json "$json" > "${json%.json}.log" 2>&1
 }
 
+demos_3k() {  # the 1000 scripted demos and 2000 more (seeds 31007..); collect resumes a partial store
+    [ -d runs/sim/demos_seen_3k.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_3k.zarr
+    python -m trainer collect --episodes 3000 --seed 30000 --workers 2 --out runs/sim/demos_seen_3k.zarr
+}
+
 chosen() {  # the STUDENTS entries named in $NAMES (all of them if it is empty)
     local student
     for student in "${STUDENTS[@]}"; do
@@ -173,8 +178,7 @@ looking() {
     # docs/student.md "The hand strays on the way down": 2000 more scripted demos (seeds 31007..) beside the 1000, and
     # the object head also trained on the frames of 600 recovery episodes of gt_more_8k (the student drives to a
     # seeded step, the reactive expert finishes; seeds 40000..); each the `dart` budget, against gt_more_8k.
-    [ -d runs/sim/demos_seen_3k.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_3k.zarr
-    python -m trainer collect --episodes 3000 --seed 30000 --workers 2 --out runs/sim/demos_seen_3k.zarr
+    demos_3k
     python -m trainer collect --teacher takeover:runs/student/gt_more_8k.onnx --episodes 600 --seed 40000 \
         --workers 1 --out runs/sim/takeover_gt_more_8k.zarr
     finetune gt_3k_8k runs/sim/demos_seen_3k.zarr gt 1 &
@@ -238,27 +242,27 @@ handpose() {
     done
 }
 
-finegrid() {
-    # docs/student.md "A finer keypoint grid": gt_hpo_16k (handpose's command) beside the same with 32 more
-    # keypoints from the encoder's stride-8 stage, one core each; the object head's error offline on 60
-    # held-out demos (seeds 50000..), then in closed loop by the hand's height
+moredata() {
+    # docs/student.md "The object estimate does not generalise": the handpose recipe (hand pose + object offset)
+    # from scratch on the 3000 scripted demos, in one 36000-step cosine schedule, beside the same with the object
+    # head's own reading of the object's offset from the hand (--hand-target --seen-offset); one core each
+    demos_3k
+    local name common="--demos runs/sim/demos_seen_3k.zarr --depth-source gt --object-loss 1 --steps 36000 --batch 32
+        --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 1 --ckpt-every 1000 --hand-pose --object-offset"
+    python -m trainer student fit $common --out runs/student/gt3k_hpo_36k &
+    python -m trainer student fit $common --hand-target --seen-offset --out runs/student/gt3k_hpos_36k
+    wait
     [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
         --workers 2 --out runs/student/heldout_60.zarr
-    local fk name
-    for fk in 0 32; do
-        name=gt_hpo_16k
-        [ "$fk" = 0 ] || name=gt_hpof_16k
-        python -m trainer student fit --demos runs/sim/demos_seen.zarr --depth-source gt --out "runs/student/$name" \
-            --object-loss 1 --steps 16000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 \
-            --threads 1 --ckpt-every 1000 --hand-pose --object-offset --fine-keypoints "$fk" &
-    done
-    wait
-    for name in gt_hpo_16k gt_hpof_16k; do
+    for name in gt3k_hpo_36k gt3k_hpos_36k; do
         python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
         python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos runs/student/heldout_60.zarr \
             --checkpoint "runs/student/$name/ckpt.pt"
         python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
             --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
+        for objects in seen unseen; do
+            cell "${name}_x4" "runs/student/${name}_x4.onnx" none clean "$objects" 180 runs/table2/key
+        done
     done
 }
 
@@ -277,4 +281,4 @@ table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order o
     python -m trainer table "${files[@]}" --base docs/table2.json --out docs/table2.json
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|finegrid [NAME...]}"
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata [NAME...]}"

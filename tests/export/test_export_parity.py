@@ -39,7 +39,6 @@ def test_onnx_matches_torch_ddim_loop(untrained_student_checkpoint, tmp_path, st
 
 
 @pytest.mark.parametrize("inputs", [["--hand-pose"], ["--hand-pose", "--object-offset"],
-                                    ["--hand-pose", "--object-offset", "--fine-keypoints", "4"],
                                     ["--hand-target", "--seen-offset"]])
 def test_hand_pose_student_exports_with_its_kinematics_in_the_graph(tmp_path, inputs):
     """The forward kinematics (and with --object-offset the object head) are traced into the graph."""

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import pytest
 import torch
 
@@ -69,28 +67,12 @@ def test_spatial_softmax_reads_where_the_peak_is():
     torch.testing.assert_close(pool(fmap), torch.tensor([[1.0, -1.0], [-1.0, 1.0]]), atol=1e-4, rtol=0)
 
 
-def test_fine_keypoints_pool_the_stride_8_map_after_the_coarse_keypoints():
-    torch.manual_seed(0)
-    coarse = StudentPolicy(TINY).encoder.eval()
-    fine = StudentPolicy(replace(TINY, fine_keypoints=4)).encoder.eval()
-    fine.load_state_dict({**fine.state_dict(), **coarse.state_dict()})  # same stem, blocks and coarse pool
-    assert fine.out_features == coarse.out_features + 8
-    depth = torch.rand(1, 3, 96, 128)
-    with torch.no_grad():
-        features = fine(depth)
-        torch.testing.assert_close(features[:, :coarse.out_features], coarse(depth), rtol=0, atol=0)
-        stage2 = fine.blocks[:4](fine.stem(depth))
-        assert stage2.shape[-2:] == (12, 16)  # 4x the coarse 3x4 grid per side
-        torch.testing.assert_close(features[:, coarse.out_features:], fine.fine_pool(stage2), rtol=0, atol=0)
-
-
 @pytest.mark.parametrize("kwargs, match", [
     ({"width": 12}, "width"),
     ({"head_dims": (16, 20)}, "head_dims"),
     ({"action_horizon": 10, "head_dims": (16, 32, 64)}, "action_horizon"),
     ({"exec_horizon": 17}, "exec_horizon"),
     ({"keypoints": 0}, "keypoints"),
-    ({"fine_keypoints": -1}, "fine_keypoints"),
 ])
 def test_bad_config_is_refused(kwargs, match):
     with pytest.raises(StudentConfigError, match=match):

@@ -19,9 +19,6 @@ class StudentConfig:
     """ResNet-18 base width: stage channels are width, 2w, 4w, 8w (64 = the standard ResNet-18)."""
     keypoints: int = 32
     """Learned keypoints of the encoder's spatial-softmax pooling (robomimic / diffusion_policy: 32)."""
-    fine_keypoints: int = 0
-    """Keypoints also pooled from the encoder's second stage (stride 8: a 12x16 map at 96x128, against the
-    last stage's 3x4): a finer grid to place the object on (docs/student.md "A finer keypoint grid")."""
     obs_horizon: int = 3
     """Depth frames stacked as input channels, oldest first."""
     action_horizon: int = 16
@@ -68,8 +65,6 @@ class StudentConfig:
                                      f"2**{len(self.head_dims) - 1} for a {len(self.head_dims)}-level U-Net")
         if not (0 < self.exec_horizon <= self.action_horizon):
             raise StudentConfigError(f"exec_horizon {self.exec_horizon} must be in 1..{self.action_horizon}")
-        if self.fine_keypoints < 0:
-            raise StudentConfigError(f"fine_keypoints must be >= 0, got {self.fine_keypoints}")
         for name in ("keypoints", "obs_horizon", "state_dim", "action_dim", "state_features", "step_features",
                      "train_timesteps"):
             if getattr(self, name) < 1:

@@ -66,10 +66,9 @@ def _coords(n: int) -> torch.Tensor:
 
 class ResNet18(nn.Module):
     """ResNet-18 layout (stem + 4 stages of 2 basic blocks), trained from scratch: no weights to fetch,
-    pooled by ``SpatialSoftmax`` instead of the classifier's global average. With ``fine_keypoints`` the
-    second stage (stride 8) is pooled too and its keypoints follow the last stage's (stride 32)."""
+    pooled by ``SpatialSoftmax`` instead of the classifier's global average."""
 
-    def __init__(self, in_channels: int, width: int, keypoints: int, fine_keypoints: int = 0) -> None:
+    def __init__(self, in_channels: int, width: int, keypoints: int) -> None:
         super().__init__()
         self.stem = nn.Sequential(nn.Conv2d(in_channels, width, 7, 2, 3, bias=False),
                                   nn.GroupNorm(_groups(width), width), nn.ReLU(), nn.MaxPool2d(3, 2, 1))
@@ -80,15 +79,10 @@ class ResNet18(nn.Module):
             blocks += [BasicBlock(c_in, c, 1 if i == 0 else 2), BasicBlock(c, c, 1)]
         self.blocks = nn.Sequential(*blocks)
         self.pool = SpatialSoftmax(chans[-1], keypoints)
-        self.fine_pool = SpatialSoftmax(chans[1], fine_keypoints) if fine_keypoints else None
-        self.out_features = self.pool.out_features + 2 * fine_keypoints
+        self.out_features = self.pool.out_features
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = self.stem(x)
-        if self.fine_pool is None:
-            return self.pool(self.blocks(x))
-        fine = self.blocks[:4](x)  # stages 1-2
-        return torch.cat([self.pool(self.blocks[4:](fine)), self.fine_pool(fine)], dim=-1)
+        return self.pool(self.blocks(self.stem(x)))
 
 
 def step_embedding(steps: torch.Tensor, dim: int) -> torch.Tensor:
@@ -194,7 +188,7 @@ class StudentPolicy(nn.Module):
         """The object head's units (standardised table position) -> metres: centre = mean, half_range = std
         of the training demos' object positions, as ``trainer.student.data.standardise``."""
         self.offset_norm = RangeNormaliser(2) if config.object_offset else None
-        self.encoder = ResNet18(config.obs_horizon, config.width, config.keypoints, config.fine_keypoints)
+        self.encoder = ResNet18(config.obs_horizon, config.width, config.keypoints)
         self.state_mlp = nn.Sequential(nn.Linear(state_inputs(config), config.state_features),
                                        nn.ReLU(), nn.Linear(config.state_features, config.state_features))
         obs_dim = self.encoder.out_features + config.state_features
