@@ -252,9 +252,14 @@ moredata() {
     python -m trainer student fit $common --out runs/student/gt3k_hpo_36k &
     python -m trainer student fit $common --hand-target --seen-offset --out runs/student/gt3k_hpos_36k
     wait
+    # then 12000 more steps of each (lr 1e-4), as the 1000-demo runs gained from more steps
+    local more="runs/sim/demos_seen_3k.zarr gt 1 --hand-pose --object-offset --steps 12000"
+    finetune gt3k_hpo_more_12k $more --init runs/student/gt3k_hpo_36k/ckpt.pt &
+    finetune gt3k_hpos_more_12k $more --hand-target --seen-offset --init runs/student/gt3k_hpos_36k/ckpt.pt
+    wait
     [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
         --workers 2 --out runs/student/heldout_60.zarr
-    for name in gt3k_hpo_36k gt3k_hpos_36k; do
+    for name in gt3k_hpo_36k gt3k_hpos_36k gt3k_hpo_more_12k gt3k_hpos_more_12k; do
         python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
         python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos runs/student/heldout_60.zarr \
             --checkpoint "runs/student/$name/ckpt.pt"
