@@ -17,6 +17,8 @@
 #   models/student/table2.sh handpose   the oracle (perfect perception, same head) with and without the hand's pose,
 #                                       then GT students given the hand's pose (and the object's offset from it),
 #                                       each fine-tuned like `dart`, and their clean cells
+#   models/student/table2.sh moredata   the hand-pose students on 3000 demos, from scratch, and their measures
+#   models/student/table2.sh sixk       the best of those on 6000 demos, and its measures
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -64,9 +66,14 @@ cell() {  # name model restore sensor objects episodes [folder]
         --episodes "$6" --workers "${WORKERS:-2}" --json "$json" > "${json%.json}.log" 2>&1
 }
 
-demos_3k() {  # the 1000 scripted demos and 2000 more (seeds 31007..); collect resumes a partial store
-    [ -d runs/sim/demos_seen_3k.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_3k.zarr
-    python -m trainer collect --episodes 3000 --seed 30000 --workers 2 --out runs/sim/demos_seen_3k.zarr
+grow_demos() {  # from to episodes: a copy of a scripted demo store grown to more episodes; collect resumes a
+    # partial store and continues its seeds (the 1000 demos end at seed 31006, the 3000 at 33006)
+    [ -d "$2" ] || cp -r "$1" "$2"
+    python -m trainer collect --episodes "$3" --seed 30000 --workers 2 --out "$2"
+}
+
+demos_3k() {
+    grow_demos runs/sim/demos_seen.zarr runs/sim/demos_seen_3k.zarr 3000
 }
 
 chosen() {  # the STUDENTS entries named in $NAMES (all of them if it is empty)
@@ -242,6 +249,21 @@ handpose() {
     done
 }
 
+measure() {  # name: a hand-pose student's exec-4 ONNX, its object estimate on 60 held-out demos and on its own
+    # episodes (by distance to the object), and its clean cells at 180 episodes
+    local name=$1
+    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
+        --workers 2 --out runs/student/heldout_60.zarr
+    python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
+    python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos runs/student/heldout_60.zarr \
+        --checkpoint "runs/student/$name/ckpt.pt"
+    python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
+        --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
+    for objects in seen unseen; do
+        cell "${name}_x4" "runs/student/${name}_x4.onnx" none clean "$objects" 180 runs/table2/key
+    done
+}
+
 moredata() {
     # docs/student.md "The object estimate does not generalise": the handpose recipe (hand pose + object offset)
     # from scratch on the 3000 scripted demos, in one 36000-step cosine schedule, beside the same with the object
@@ -257,17 +279,8 @@ moredata() {
     finetune gt3k_hpo_more_12k $more --init runs/student/gt3k_hpo_36k/ckpt.pt &
     finetune gt3k_hpos_more_12k $more --hand-target --seen-offset --init runs/student/gt3k_hpos_36k/ckpt.pt
     wait
-    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
-        --workers 2 --out runs/student/heldout_60.zarr
     for name in gt3k_hpo_36k gt3k_hpos_36k gt3k_hpo_more_12k gt3k_hpos_more_12k; do
-        python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
-        python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos runs/student/heldout_60.zarr \
-            --checkpoint "runs/student/$name/ckpt.pt"
-        python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
-            --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
-        for objects in seen unseen; do
-            cell "${name}_x4" "runs/student/${name}_x4.onnx" none clean "$objects" 180 runs/table2/key
-        done
+        measure "$name"
     done
 }
 
@@ -286,4 +299,14 @@ table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order o
     python -m trainer table "${files[@]}" --base docs/table2.json --out docs/table2.json
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata [NAME...]}"
+sixk() {
+    # docs/student.md "6000 demos": moredata's --seen-offset student on twice the demos, the same 36000 steps; one
+    # run on 2 threads (6000 demos' depth is 12 GB in memory, two runs at once would not fit in 24 GB)
+    grow_demos runs/sim/demos_seen_3k.zarr runs/sim/demos_seen_6k.zarr 6000
+    python -m trainer student fit --demos runs/sim/demos_seen_6k.zarr --depth-source gt --object-loss 1 --steps 36000 \
+        --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 --ckpt-every 1000 \
+        --hand-pose --object-offset --hand-target --seen-offset --out runs/student/gt6k_hpos_36k
+    measure gt6k_hpos_36k
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk [NAME...]}"
