@@ -249,13 +249,15 @@ handpose() {
     done
 }
 
-measure() {  # name: a hand-pose student's exec-4 ONNX, its object estimate on 60 held-out demos and on its own
-    # episodes (by distance to the object), and its clean cells at 180 episodes
+measure() {  # name training-demos: a hand-pose student's exec-4 ONNX, its object estimate on 60 held-out demos, on
+    # its training demos and on its own episodes (by distance to the object), and its clean cells at 180 episodes
     local name=$1
     [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
         --workers 2 --out runs/student/heldout_60.zarr
     python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
     python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos runs/student/heldout_60.zarr \
+        --checkpoint "runs/student/$name/ckpt.pt"
+    python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos "$2" \
         --checkpoint "runs/student/$name/ckpt.pt"
     python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
         --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
@@ -280,7 +282,7 @@ moredata() {
     finetune gt3k_hpos_more_12k $more --hand-target --seen-offset --init runs/student/gt3k_hpos_36k/ckpt.pt
     wait
     for name in gt3k_hpo_36k gt3k_hpos_36k gt3k_hpo_more_12k gt3k_hpos_more_12k; do
-        measure "$name"
+        measure "$name" runs/sim/demos_seen_3k.zarr
     done
 }
 
@@ -306,7 +308,7 @@ sixk() {
     python -m trainer student fit --demos runs/sim/demos_seen_6k.zarr --depth-source gt --object-loss 1 --steps 36000 \
         --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 --ckpt-every 1000 \
         --hand-pose --object-offset --hand-target --seen-offset --out runs/student/gt6k_hpos_36k
-    measure gt6k_hpos_36k
+    measure gt6k_hpos_36k runs/sim/demos_seen_6k.zarr
 }
 
 "${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk [NAME...]}"
