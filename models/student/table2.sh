@@ -56,7 +56,9 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "shipped runs/student/ddg2_ft_20k.onnx none"  # models/student.onnx: the ddg student at 20000 steps
           "gt_hand runs/student/gt_hand_more_8k.onnx none"  # `dagger` step 3, without the recovery demos
           "ddg_hand runs/student/ddg_hand_8k.onnx none"  # `dagger` step 4
-          "ddg_b runs/student/ddg_b_ft_8k.onnx none")  # `ddg_b`: DDG (b), trained on the stereo sensor's frames
+          "ddg_b runs/student/ddg_b_ft_8k.onnx none"  # `ddg_b`: DDG (b), trained on the stereo sensor's frames
+          # `moredata`: the best GT student so far (3000 demos, hand pose, seen offset, 48000 steps); `key` names it
+          "gt3k_hpos_more_12k_x4 runs/student/gt3k_hpos_more_12k_x4.onnx none")
 
 cell() {  # name model restore sensor objects episodes [folder]
     local json=${7:-runs/table2}/$1_$4_$5_$6.json
@@ -67,7 +69,8 @@ cell() {  # name model restore sensor objects episodes [folder]
 }
 
 grow_demos() {  # from to episodes: a copy of a scripted demo store grown to more episodes; collect resumes a
-    # partial store and continues its seeds (the 1000 demos end at seed 31006, the 3000 at 33006)
+    # partial store where it stopped: seed 30000 + attempts so far (the 1000 demos are seeds 0..1001, then 31002..33006
+    # make 3000, 33007..36013 make 6000; meta/seed records each episode's)
     [ -d "$2" ] || cp -r "$1" "$2"
     python -m trainer collect --episodes "$3" --seed 30000 --workers 2 --out "$2"
 }
@@ -182,7 +185,7 @@ dart() {
 }
 
 looking() {
-    # docs/student.md "The hand strays on the way down": 2000 more scripted demos (seeds 31007..) beside the 1000, and
+    # docs/student.md "The hand strays on the way down": 2000 more scripted demos (seeds 31002..) beside the 1000, and
     # the object head also trained on the frames of 600 recovery episodes of gt_more_8k (the student drives to a
     # seeded step, the reactive expert finishes; seeds 40000..); each the `dart` budget, against gt_more_8k.
     demos_3k
