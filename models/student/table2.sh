@@ -291,14 +291,13 @@ moredata() {
 
 table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order of STUDENTS, then the reactive one);
            # a cell measured by `key` (180 episodes) replaces the smaller one
-    local files=() key
+    local files=() small
     shopt -s nullglob
     for student in "${STUDENTS[@]}" "reactive_gt"; do
         set -- $student
+        files+=(runs/table2/key/"$1"_{clean,stereo}_*_180.json)
         for small in runs/table2/"$1"_{clean,stereo}_*.json; do
-            key=runs/table2/key/$(basename "${small%_*}")_180.json
-            [ -f "$key" ] || key=$small
-            files+=("$key")
+            [ -f "runs/table2/key/$(basename "${small%_*}")_180.json" ] || files+=("$small")
         done
     done
     python -m trainer table "${files[@]}" --base docs/table2.json --out docs/table2.json
