@@ -311,6 +311,10 @@ sixk() {
         --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 --ckpt-every 1000 \
         --hand-pose --object-offset --hand-target --seen-offset --out runs/student/gt6k_hpos_36k
     measure gt6k_hpos_36k runs/sim/demos_seen_6k.zarr
+    # then 12000 more steps (lr 1e-4), as moredata's fine-tunes, on 2 threads
+    finetune gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr gt 2 --hand-pose --object-offset --hand-target \
+        --seen-offset --steps 12000 --init runs/student/gt6k_hpos_36k/ckpt.pt
+    measure gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr
 }
 
 "${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk [NAME...]}"
