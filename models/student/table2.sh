@@ -307,9 +307,7 @@ sixk() {
     # docs/student.md "6000 demos": moredata's --seen-offset student on twice the demos, the same 36000 steps; one
     # run on 2 threads (6000 demos' depth is 12 GB in memory, two runs at once would not fit in 24 GB)
     grow_demos runs/sim/demos_seen_3k.zarr runs/sim/demos_seen_6k.zarr 6000
-    python -m trainer student fit --demos runs/sim/demos_seen_6k.zarr --depth-source gt --object-loss 1 --steps 36000 \
-        --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 --ckpt-every 1000 \
-        --hand-pose --object-offset --hand-target --seen-offset --out runs/student/gt6k_hpos_36k
+    fit gt6k_hpos_36k runs/sim/demos_seen_6k.zarr gt 2 36000 --lr 3e-4 --hand-pose --object-offset --seen-offset
     measure gt6k_hpos_36k runs/sim/demos_seen_6k.zarr
     # then 12000 more steps (lr 1e-4), as moredata's fine-tunes, on 2 threads
     finetune gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr gt 2 --hand-pose --object-offset --hand-target \
