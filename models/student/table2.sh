@@ -19,6 +19,8 @@
 #                                       each fine-tuned like `dart`, and their clean cells
 #   models/student/table2.sh moredata   the hand-pose students on 3000 demos, from scratch, and their measures
 #   models/student/table2.sh sixk       the best of those on 6000 demos, and its measures
+#   models/student/table2.sh ddgb6k     the best GT student (6000 demos) fine-tuned on DDG (b) depth (8000 steps,
+#                                       then 12000 more), their measures and stereo cells
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -58,7 +60,10 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "ddg_hand runs/student/ddg_hand_8k.onnx none"  # `dagger` step 4
           "ddg_b runs/student/ddg_b_ft_8k.onnx none"  # `ddg_b`: DDG (b), trained on the stereo sensor's frames
           # `moredata`: the best GT student so far (3000 demos, hand pose, seen offset, 48000 steps); `key` names it
-          "gt3k_hpos_more_12k_x4 runs/student/gt3k_hpos_more_12k_x4.onnx none")
+          "gt3k_hpos_more_12k_x4 runs/student/gt3k_hpos_more_12k_x4.onnx none"
+          # `ddgb6k`: the best GT student (6000 demos) fine-tuned on DDG (b) depth; `key` names it
+          "ddgb6k_hpos_8k_x4 runs/student/ddgb6k_hpos_8k_x4.onnx none"
+          "ddgb6k_hpos_more_12k_x4 runs/student/ddgb6k_hpos_more_12k_x4.onnx none")
 
 cell() {  # name model restore sensor objects episodes [folder]
     local json=${7:-runs/table2}/$1_$4_$5_$6.json
@@ -315,4 +320,28 @@ sixk() {
     measure gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk [NAME...]}"
+ddgb6k() {
+    # the paper's point with the best recipe: the best GT student (6000 demos, hand pose, seen offset, 48000
+    # steps) fine-tuned 8000 steps (lr 1e-4) on DDG (b)'s depth of the first 1000 of its demos (DDIM 5: 27 min on
+    # 2 cores; all 6000 would take ~2.7 h), then its measures and its stereo cells beside the GT student's
+    [ -d runs/sim/demos_seen_ddg_b.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
+    local pids=() shard
+    for shard in 0/2 1/2; do
+        python -m trainer ddg generate --demos runs/sim/demos_seen_ddg_b.zarr --model models/ddg_stereo \
+            --steps 5 --threads 1 --batch 16 --shard "$shard" &
+        pids+=($!)
+        sleep 30  # shard 0 creates the output arrays before shard 1 opens them
+    done
+    for pid in "${pids[@]}"; do wait "$pid"; done
+    finetune ddgb6k_hpos_8k runs/sim/demos_seen_ddg_b.zarr ddg 2 --hand-pose --object-offset --hand-target \
+        --seen-offset --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    measure ddgb6k_hpos_8k runs/sim/demos_seen_ddg_b.zarr
+    key ddgb6k_hpos_8k_x4
+    # then 12000 more steps (lr 1e-4), as the GT students gained from more steps
+    finetune ddgb6k_hpos_more_12k runs/sim/demos_seen_ddg_b.zarr ddg 2 --hand-pose --object-offset --hand-target \
+        --seen-offset --steps 12000 --init runs/student/ddgb6k_hpos_8k/ckpt.pt
+    measure ddgb6k_hpos_more_12k runs/sim/demos_seen_ddg_b.zarr
+    key ddgb6k_hpos_more_12k_x4
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k [NAME...]}"
