@@ -21,6 +21,7 @@
 #   models/student/table2.sh sixk       the best of those on 6000 demos, and its measures
 #   models/student/table2.sh ddgb6k     the best GT student (6000 demos) fine-tuned on DDG (b) depth (8000 steps,
 #                                       then 12000 more), their measures and stereo cells
+#   models/student/table2.sh ddgb6k_all DDG (b) depth of all 6000 demos (resumable)
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -132,10 +133,9 @@ reactive() {  # the recipe of train.sh step 2's first 16000 steps, on the reacti
 
 ddg_b() {
     # The same demos (a copy: a store holds one DDG's depth) through DDG (b) at DDIM 5, as train.sh step 3 did
-    # with DDG (a); 1 core each, so generation can run beside train.sh step 2 and the fine-tune beside cells.
-    [ -d runs/sim/demos_seen_ddg_b.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
-    python -m trainer ddg generate --demos runs/sim/demos_seen_ddg_b.zarr --model models/ddg_stereo --steps 5 \
-        --threads "${DDG_THREADS:-1}" --batch 16
+    # with DDG (a) (first run: one 1-core process beside train.sh step 2; frames are seeded by index, so the
+    # two shards give the same depth)
+    ddg_b_depth runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
     python -m trainer student fit --demos runs/sim/demos_seen_ddg_b.zarr --depth-source ddg \
         --out runs/student/ddg_b_ft_8k --init runs/student/gt_1000_obj1/ckpt.pt --object-loss 1 --steps 8000 \
         --batch 32 --lr 1e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 1 --ckpt-every 1000
@@ -320,19 +320,23 @@ sixk() {
     measure gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr
 }
 
-ddgb6k() {
-    # the paper's point with the best recipe: the best GT student (6000 demos, hand pose, seen offset, 48000
-    # steps) fine-tuned 8000 steps (lr 1e-4) on DDG (b)'s depth of the first 1000 of its demos (DDIM 5: 27 min on
-    # 2 cores; all 6000 would take ~2.7 h), then its measures and its stereo cells beside the GT student's
-    [ -d runs/sim/demos_seen_ddg_b.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
+ddg_b_depth() {  # from to: a copy of a demo store with DDG (b)'s depth (DDIM 5) in two 1-core shards; resumable
+    [ -d "$2" ] || cp -r "$1" "$2"
     local pids=() shard
     for shard in 0/2 1/2; do
-        python -m trainer ddg generate --demos runs/sim/demos_seen_ddg_b.zarr --model models/ddg_stereo \
-            --steps 5 --threads 1 --batch 16 --shard "$shard" &
+        python -m trainer ddg generate --demos "$2" --model models/ddg_stereo --steps 5 --threads 1 --batch 16 \
+            --shard "$shard" &
         pids+=($!)
         sleep 30  # shard 0 creates the output arrays before shard 1 opens them
     done
     for pid in "${pids[@]}"; do wait "$pid"; done
+}
+
+ddgb6k() {
+    # the paper's point with the best recipe: the best GT student (6000 demos, hand pose, seen offset, 48000
+    # steps) fine-tuned 8000 steps (lr 1e-4) on DDG (b)'s depth of the first 1000 of its demos (DDIM 5: 27 min on
+    # 2 cores; all 6000 would take ~2.7 h), then its measures and its stereo cells beside the GT student's
+    ddg_b_depth runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
     finetune ddgb6k_hpos_8k runs/sim/demos_seen_ddg_b.zarr ddg 2 --hand-pose --object-offset --hand-target \
         --seen-offset --init runs/student/gt6k_hpos_more_12k/ckpt.pt
     measure ddgb6k_hpos_8k runs/sim/demos_seen_ddg_b.zarr
@@ -344,4 +348,8 @@ ddgb6k() {
     key ddgb6k_hpos_more_12k_x4
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k [NAME...]}"
+ddgb6k_all() {  # next: DDG (b)'s depth of all 6000 demos (~2.7 h on 2 cores), for a fine-tune on all of them
+    ddg_b_depth runs/sim/demos_seen_6k.zarr runs/sim/demos_seen_6k_ddg_b.zarr
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb6k_all [NAME...]}"
