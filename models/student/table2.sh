@@ -21,6 +21,7 @@
 #   models/student/table2.sh sixk       the best of those on 6000 demos, and its measures
 #   models/student/table2.sh ddgb6k     the best GT student (6000 demos) fine-tuned on DDG (b) depth (8000 steps,
 #                                       then 12000 more), their measures and stereo cells
+#   models/student/table2.sh ddgb_heldout  their object estimate on DDG (b) depth, held-out and training demos
 #   models/student/table2.sh ddgb6k_all DDG (b) depth of all 6000 demos (resumable)
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
@@ -348,8 +349,19 @@ ddgb6k() {
     key ddgb6k_hpos_more_12k_x4
 }
 
+ddgb_heldout() {  # the DDG (b) students' object estimate on DDG (b) depth of the 60 held-out demos (and their training demos)
+    ddg_b_depth runs/student/heldout_60.zarr runs/student/heldout_60_ddg_b.zarr
+    local name demos
+    for name in ddgb6k_hpos_8k ddgb6k_hpos_more_12k; do
+        for demos in runs/student/heldout_60_ddg_b.zarr runs/sim/demos_seen_ddg_b.zarr; do
+            python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos "$demos" \
+                --depth-source ddg --checkpoint "runs/student/$name/ckpt.pt"
+        done
+    done
+}
+
 ddgb6k_all() {  # next: DDG (b)'s depth of all 6000 demos (~2.7 h on 2 cores), for a fine-tune on all of them
     ddg_b_depth runs/sim/demos_seen_6k.zarr runs/sim/demos_seen_6k_ddg_b.zarr
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb6k_all [NAME...]}"
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all [NAME...]}"
