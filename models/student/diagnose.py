@@ -145,13 +145,13 @@ def locate(policy: str, ckpt_path: str, episodes: int) -> None:
     import torch
 
     from runtime.preprocess import FrameStack, normalise
-    from trainer.dataset import DEPTH_SCALE, DemoStore
+    from trainer.dataset import DEPTH_SCALE
     from trainer.student import checkpoint
-    from trainer.student.data import column_scale, privileged_targets
+    from trainer.student.data import column_scale, training_targets
 
     ckpt = checkpoint.load(Path(ckpt_path))
     net = ckpt.policy().eval()
-    mean, std = column_scale(privileged_targets(DemoStore.open(ckpt.info.data["demos"]), False))
+    mean, std = column_scale(training_targets(ckpt.info.data, False))
     env, tracker = GraspEnv(EnvConfig(objects=KINDS)), Tracker(make_policy(policy))
     bins = {name: [] for name in HEIGHT_BINS_CM}
     for job in jobs(episodes):

@@ -328,7 +328,6 @@ ddg_b_depth() {  # from to: a copy of a demo store with DDG (b)'s depth (DDIM 5)
         python -m trainer ddg generate --demos "$2" --model models/ddg_stereo --steps 5 --threads 1 --batch 16 \
             --shard "$shard" &
         pids+=($!)
-        sleep 30  # shard 0 creates the output arrays before shard 1 opens them
     done
     for pid in "${pids[@]}"; do wait "$pid"; done
 }

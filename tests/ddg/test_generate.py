@@ -4,8 +4,10 @@ import numpy as np
 import pytest
 import zarr
 
+from tests.conftest import write_synthetic_demos
 from trainer.ddg.generate import DemoStoreError, GenerateConfig, generate
 from trainer.ddg.sample import FrameError
+from trainer.student.data import DemoDataError, DemoDataset
 
 
 def _run(store, model, **kw):
@@ -31,6 +33,44 @@ def test_shards_cover_the_store_and_match_a_single_run(tiny_demos, tiny_model, t
     assert _run(copy, tiny_model, shard="0/2")["frames"] == 12
     a, b = zarr.open_group(str(tiny_demos), mode="r"), zarr.open_group(str(copy), mode="r")
     assert np.array_equal(np.asarray(a["data/depth_ddg"]), np.asarray(b["data/depth_ddg"]))
+
+
+def test_students_refuse_ddg_depth_no_shard_has_reached(tiny_model, tmp_path):
+    """Chunks not generated yet hold zeros: a student trains only on episodes whose chunks are all done."""
+    demos = write_synthetic_demos(tmp_path / "demos.zarr")  # 2 x 12 steps: chunks [0, 8), [8, 16), [16, 24)
+    _run(demos, tiny_model, shard="0/3")
+    with pytest.raises(DemoDataError, match=r"1 of the 2 chunks \(8 frames each\) .* not generated yet "
+                                            r"\(first: chunk 1\)"):
+        DemoDataset(demos, "ddg", 3, 16, episodes=1)
+    _run(demos, tiny_model, shard="1/3")
+    assert len(DemoDataset(demos, "ddg_nograft", 3, 16, episodes=1)) == 12
+    with pytest.raises(DemoDataError, match="chunk 2"):
+        DemoDataset(demos, "ddg", 3, 16)
+    assert len(DemoDataset(demos, "gt", 3, 16)) == 24  # the simulated depth is always whole
+
+
+def test_outputs_are_created_under_the_stores_lock(tiny_demos, tiny_model, monkeypatch):
+    """Shards started at the same moment must not each create the output arrays: another process cannot take
+    the lock while one creates them (it blocks until then), and the store still opens as zarr."""
+    import fcntl
+
+    import trainer.ddg.generate as gen
+
+    create, held = gen._outputs, []
+
+    def outputs_while_another_tries(*args):
+        with open(tiny_demos / gen.LOCK_NAME) as other:  # another open file: as another process
+            try:
+                fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                held.append(False)
+            except BlockingIOError:
+                held.append(True)
+        return create(*args)
+
+    monkeypatch.setattr(gen, "_outputs", outputs_while_another_tries)
+    assert _run(tiny_demos, tiny_model)["frames"] == 20
+    assert held == [True]
+    assert np.all(np.asarray(zarr.open_group(str(tiny_demos), mode="r")["meta/ddg_done"]))
 
 
 def test_resume_skips_finished_chunks(tiny_demos, tiny_model):

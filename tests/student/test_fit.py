@@ -51,6 +51,25 @@ def test_fit_writes_checkpoint_and_resumes(small_demos, tmp_path):
     assert json.loads((out / "summary.json").read_text())["steps_this_run"] == 2
 
 
+def test_episodes_trains_on_the_first_episodes_and_standardises_over_them(small_demos, tmp_path):
+    from trainer.student.data import DemoDataError, training_targets
+
+    out = tmp_path / "first"
+    assert fit_main([*fit_args(small_demos, out, 1), "--episodes", "1", "--hand-target"]) == 0
+    data = checkpoint.load(out / "ckpt.pt").info.data
+    assert data["episodes"] == 1 and data["steps"] == 12  # the store holds two 12-step episodes
+    first = DemoDataset(small_demos, "gt", 3, 16, True, episodes=1)
+    every = DemoDataset(small_demos, "gt", 3, 16, True)
+    np.testing.assert_array_equal(first.depth, every.depth[:12])
+    np.testing.assert_array_equal(first.raw_targets, every.raw_targets[:12])
+    np.testing.assert_array_equal(training_targets(data, True), first.raw_targets)  # probe's reference
+    assert not np.allclose(first.targets, every.targets[:12])  # standardised over the first episode alone
+    with pytest.raises(DemoDataError, match="--episodes 3: .* holds 2 episodes"):
+        DemoDataset(small_demos, "gt", 3, 16, episodes=3)
+    with pytest.raises(FitError, match="--episodes must be >= 0"):
+        fit_main([*fit_args(small_demos, out, 1), "--episodes", "-1"])
+
+
 def test_resume_with_another_model_is_refused(small_demos, tmp_path):
     out = tmp_path / "run"
     assert fit_main(fit_args(small_demos, out, 1)) == 0

@@ -2,13 +2,17 @@
 
 Work is split in chunks of ``chunk`` frames (the output arrays' zarr chunks), so each chunk is written by
 exactly one shard and ``meta/ddg_done[chunk]`` records it: a killed run resumes where it stopped, and
-``--shard i/n`` on n machines covers every chunk once. Each frame's noise is seeded by its index, so the
-result is the same however the work is split.
+``--shard i/n`` on n machines covers every chunk once; shards may start together (the first to take the
+store's lock file creates the outputs). Each frame's noise is seeded by its index, so the result is the same
+however the work is split.
 """
 
 from __future__ import annotations
 
+import fcntl
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +23,8 @@ from tqdm import tqdm
 from .baselines import DEFAULT_MODEL
 from .model import model_id
 from .sample import Generator
+
+LOCK_NAME = "ddg_generate.lock"
 
 
 class DemoStoreError(ValueError):
@@ -67,7 +73,8 @@ def generate(cfg: GenerateConfig) -> dict:
     gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, mode=cfg.mode,
                     eta=cfg.eta)
     gen.check_frames(depth)
-    outs, done = _outputs(root, cfg, depth.shape)
+    with _exclusive(cfg.demos):  # shards started together: the first creates the outputs, the rest see them
+        outs, done = _outputs(_open(cfg.demos), cfg, depth.shape)
     todo = [k for k in range(done.shape[0]) if k % shards == i and not done[k]]
     frames, t0 = 0, time.perf_counter()
     bar = tqdm(todo, desc=f"ddg generate shard {cfg.shard}", unit="chunk")
@@ -98,6 +105,17 @@ def _open(path: str) -> zarr.Group:
     if d.dtype != np.uint16 or d.ndim != 3:
         raise DemoStoreError(f"{path}: data/depth must be uint16 [N, H, W], got {d.dtype} {d.shape}")
     return root
+
+
+@contextmanager
+def _exclusive(path: str) -> Iterator[None]:
+    """Hold the store's lock file (``LOCK_NAME``; zarr ignores it) until the block ends."""
+    with open(Path(path) / LOCK_NAME, "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 def _outputs(root: zarr.Group, cfg: GenerateConfig, shape: tuple[int, ...]):

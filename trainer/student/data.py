@@ -56,9 +56,11 @@ class DemoDataset:
     """All of a store's steps in memory (uint16 depth: ~25 kB per step)."""
 
     def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int,
-                 hand_target: bool = False, target_reference: np.ndarray | None = None) -> None:
+                 hand_target: bool = False, target_reference: np.ndarray | None = None,
+                 episodes: int = 0) -> None:
         """``target_reference``: the privileged targets whose mean and std standardise this store's (default:
-        its own); a store that only trains the object head is standardised like the training demos."""
+        its own); a store that only trains the object head is standardised like the training demos.
+        ``episodes``: only the store's first this many (0 = all)."""
         if depth_source not in DEPTH_ARRAYS:
             raise DemoDataError(f"unknown depth source {depth_source!r}; "
                                 f"choose one of {sorted(DEPTH_ARRAYS)}")
@@ -67,10 +69,9 @@ class DemoDataset:
         if key not in store.root:
             raise DemoDataError(f"{path} has no {key} for depth source {depth_source!r} "
                                 f"(run `python -m trainer ddg generate` first)")
-        self.ends = store.episode_ends
-        if len(self.ends) == 0:
-            raise DemoDataError(f"{path} holds no episodes")
+        self.ends = first_episodes(store.episode_ends, episodes, path)
         n = int(self.ends[-1])
+        check_generated(store, key, n, path)
         self.depth = np.asarray(store.root[key][:n])
         self.state = np.asarray(store.root["data/state"][:n], dtype=np.float32)
         self.action = np.asarray(store.root["data/action"][:n], dtype=np.float32)
@@ -83,10 +84,10 @@ class DemoDataset:
         self.obs_horizon, self.action_horizon = obs_horizon, action_horizon
         self.augment = frame_augmenter(depth_source)
         starts = np.concatenate([[0], self.ends[:-1]])
-        steps_per_ep = store.episode_lengths
+        steps_per_ep = self.ends - starts
         self._start = np.repeat(starts, steps_per_ep)
         self._end = np.repeat(self.ends, steps_per_ep)
-        self.raw_targets = privileged_targets(store, hand_target)
+        self.raw_targets = privileged_targets(store, hand_target, n)
         reference = self.raw_targets if target_reference is None else target_reference
         self.targets = None if self.raw_targets is None else standardise(self.raw_targets, reference)
 
@@ -123,6 +124,28 @@ class DemoDataset:
                 "episodes": len(self.ends), "steps": len(self), "demos_sha256": h.hexdigest()[:16]}
 
 
+def first_episodes(ends: np.ndarray, episodes: int, path: str | Path) -> np.ndarray:
+    """The episode ends of the store's first ``episodes`` episodes (0 = all of them)."""
+    if len(ends) == 0:
+        raise DemoDataError(f"{path} holds no episodes")
+    if not 0 <= episodes <= len(ends):
+        raise DemoDataError(f"--episodes {episodes}: {path} holds {len(ends)} episodes")
+    return ends[:episodes or len(ends)]
+
+
+def check_generated(store: DemoStore, key: str, n: int, path: str | Path) -> None:
+    """DDG depth of a chunk ``trainer ddg generate`` has not reached yet is zeros: refuse to train on it."""
+    if key == "data/depth" or "meta/ddg_done" not in store.root:
+        return
+    chunk = int(store.attrs["ddg"]["chunk"])
+    missing = np.flatnonzero(~np.asarray(store.root["meta/ddg_done"][: -(-n // chunk)]))
+    if missing.size:
+        raise DemoDataError(
+            f"{path}: DDG depth of {missing.size} of the {-(-n // chunk)} chunks ({chunk} frames each) that "
+            f"these episodes span is not generated yet (first: chunk {missing[0]}); finish it with "
+            f"`python -m trainer ddg generate --demos {path}`, or train on fewer episodes (--episodes)")
+
+
 def object_positions(store: DemoStore) -> np.ndarray | None:
     """Per step [N, 2], metres: where the step's object was placed (``object_xy`` of the episode's recorded
     randomisation), or None if an episode does not record it."""
@@ -133,18 +156,28 @@ def object_positions(store: DemoStore) -> np.ndarray | None:
     return np.repeat(per_episode, store.episode_lengths, axis=0)
 
 
-def privileged_targets(store: DemoStore, hand_target: bool) -> np.ndarray | None:
+def privileged_targets(store: DemoStore, hand_target: bool, steps: int | None = None) -> np.ndarray | None:
     """Per step [N, 2], metres: the object's table position (``object_positions``); with ``hand_target``
     [N, 5]: then the hand relative to it, from the recorded joint state by forward kinematics (object minus
     grasp site in x and y, and the grasp site's height above the table), which decides where to move and
-    when to close. None if an episode does not record the object's position."""
+    when to close. None if an episode does not record the object's position. ``steps``: the first this
+    many steps only."""
     placed = object_positions(store)
-    if placed is None or not hand_target:
+    if placed is None:
+        return None
+    placed = placed[:steps]
+    if not hand_target:
         return placed
     kinematics = ArmKinematics()
     state = np.asarray(store.root["data/state"][: len(placed)], dtype=np.float64)
     hand = np.array([kinematics.site(np.r_[q[:7], 0.0, 0.0])[0] for q in state])  # fingers: no effect
     return np.column_stack([placed, placed - hand[:, :2], hand[:, 2] - TABLE_Z]).astype(np.float32)
+
+
+def training_targets(data: dict, hand_target: bool) -> np.ndarray | None:
+    """``privileged_targets`` of the demos a checkpoint was trained on (its ``info.data`` fingerprint): the
+    reference its object head's units are standardised over."""
+    return privileged_targets(DemoStore.open(data["demos"]), hand_target, data.get("steps"))
 
 
 def column_scale(reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

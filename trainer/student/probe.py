@@ -26,7 +26,13 @@ from runtime.policy import PolicyError
 from trainer.dataset import DatasetError, DemoStore
 from trainer.student import checkpoint
 from trainer.student.checkpoint import CheckpointError
-from trainer.student.data import DemoDataError, DemoDataset, column_scale, privileged_targets
+from trainer.student.data import (
+    DemoDataError,
+    DemoDataset,
+    column_scale,
+    privileged_targets,
+    training_targets,
+)
 from trainer.student.onnx_policy import StudentOnnxPolicy, to_env_actions
 
 
@@ -61,7 +67,7 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     if "demos" not in ckpt.info.data:
         raise DemoDataError(f"{ckpt_path} records no training demos (an untrained checkpoint?)")
     hand = ckpt.config.hand_target
-    trained_on = privileged_targets(DemoStore.open(ckpt.info.data["demos"]), hand)
+    trained_on = training_targets(ckpt.info.data, hand)
     probed = privileged_targets(DemoStore.open(demos), hand)
     if trained_on is None or probed is None:
         raise DemoDataError("object positions are not recorded in the training or the probed demos")

@@ -46,6 +46,9 @@ class FitConfig:
     """Run folder: ckpt.pt (resumed if present), loss.png, summary.json."""
     depth_source: str = "gt"
     """Depth the student sees: gt | randnoise | ddg | ddg_nograft."""
+    episodes: int = 0
+    """Train on the store's first this many episodes (0 = all): e.g. those whose DDG depth is generated
+    while `trainer ddg generate` is still working through the rest."""
     steps: int = 20000
     """Optimiser steps in total (a resumed run continues up to this)."""
     batch: int = 64
@@ -77,6 +80,8 @@ class FitConfig:
     def __post_init__(self) -> None:
         if self.depth_source not in DEPTH_ARRAYS:
             raise FitError(f"--depth-source {self.depth_source!r}: choose one of {sorted(DEPTH_ARRAYS)}")
+        if self.episodes < 0:
+            raise FitError(f"--episodes must be >= 0 (0 = all), got {self.episodes}")
         for name in ("steps", "batch", "ckpt_every"):
             if getattr(self, name) < 1:
                 raise FitError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
@@ -234,7 +239,7 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
     if cfg.batch % world:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
     data = DemoDataset(cfg.demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
-                       model_cfg.hand_target)
+                       model_cfg.hand_target, episodes=cfg.episodes)
     if (model_cfg.object_offset or model_cfg.seen_offset) and not cfg.object_loss:
         raise FitError("--object-offset and --seen-offset read the object head's estimate: they need "
                        "--object-loss > 0")
