@@ -23,6 +23,8 @@
 #                                       then 12000 more), their measures and stereo cells
 #   models/student/table2.sh ddgb_heldout  their object estimate on DDG (b) depth, held-out and training demos
 #   models/student/table2.sh ddgb6k_all DDG (b) depth of all 6000 demos (resumable)
+#   models/student/table2.sh ddgb4k     `ddgb6k`'s fine-tune on DDG (b) depth of the first 4000 demos (once
+#                                       ddgb6k_all has reached them), its held-out object estimate and key cells
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -65,7 +67,8 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "gt3k_hpos_more_12k_x4 runs/student/gt3k_hpos_more_12k_x4.onnx none"
           # `ddgb6k`: the best GT student (6000 demos) fine-tuned on DDG (b) depth; `key` names it
           "ddgb6k_hpos_8k_x4 runs/student/ddgb6k_hpos_8k_x4.onnx none"
-          "ddgb6k_hpos_more_12k_x4 runs/student/ddgb6k_hpos_more_12k_x4.onnx none")
+          "ddgb6k_hpos_more_12k_x4 runs/student/ddgb6k_hpos_more_12k_x4.onnx none"
+          "ddgb4k_hpos_more_12k_x4 runs/student/ddgb4k_hpos_more_12k_x4.onnx none")  # `ddgb4k`
 
 cell() {  # name model restore sensor objects episodes [folder]
     local json=${7:-runs/table2}/$1_$4_$5_$6.json
@@ -363,4 +366,17 @@ ddgb6k_all() {  # next: DDG (b)'s depth of all 6000 demos (~2.7 h on 2 cores), f
     ddg_b_depth runs/sim/demos_seen_6k.zarr runs/sim/demos_seen_6k_ddg_b.zarr
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all [NAME...]}"
+ddgb4k() {
+    # `ddgb6k` with 4x the data: the same start, steps and lr on DDG (b) depth of the first 4000 demos of the 6000
+    # (`ddgb6k_all` stopped once it had reached them; `--episodes` refuses frames not generated yet)
+    local demos=runs/sim/demos_seen_6k_ddg_b.zarr name=ddgb4k_hpos_more_12k
+    local recipe="--hand-pose --object-offset --hand-target --seen-offset --episodes 4000"
+    finetune ddgb4k_hpos_8k $demos ddg 2 $recipe --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    finetune $name $demos ddg 2 $recipe --steps 12000 --init runs/student/ddgb4k_hpos_8k/ckpt.pt
+    python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
+    python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --depth-source ddg \
+        --demos runs/student/heldout_60_ddg_b.zarr --checkpoint "runs/student/$name/ckpt.pt"
+    key "${name}_x4"
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k [NAME...]}"
