@@ -47,6 +47,11 @@ def test_students_refuse_ddg_depth_no_shard_has_reached(tiny_model, tmp_path):
     with pytest.raises(DemoDataError, match="chunk 2"):
         DemoDataset(demos, "ddg", 3, 16)
     assert len(DemoDataset(demos, "gt", 3, 16)) == 24  # the simulated depth is always whole
+    _run(demos, tiny_model)
+    root = zarr.open_group(str(demos), mode="r+")
+    root["data/depth_ddg"].resize((20, 96, 128))  # as if collect had appended 4 frames since
+    with pytest.raises(DemoDataError, match="holds 20 frames, the episodes 24: the store grew"):
+        DemoDataset(demos, "ddg", 3, 16)
 
 
 def test_outputs_are_created_under_the_stores_lock(tiny_demos, tiny_model, monkeypatch):
