@@ -6,6 +6,7 @@
     python models/student/diagnose.py dart --sigma 0 0.3 --episodes 24       # the expert under DART noise
     python models/student/diagnose.py descent student:S.onnx --episodes 30   # where the hand strays off
     python models/student/diagnose.py locate student:S.onnx --checkpoint ckpt.pt   # its object estimate
+                                                          [--sensor stereo]    # on what the sensor shows
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
 look like; ``spread`` regresses a policy's closing offset (object minus grasp site when it first closes the
@@ -104,14 +105,15 @@ def spread(policy: str, episodes: int) -> None:
 
 
 class Tracker:
-    """Wraps a policy; records the object's offset from the grasp site (cm) and its table position (m) at
-    every step until the close."""
+    """Wraps a policy; records the object's offset from the grasp site (cm), its table position (m) and with
+    ``frames`` the depth the policy was shown (after the sensor), at every step until the close."""
 
-    def __init__(self, inner) -> None:
-        self.inner, self.offsets, self.objects, self.closed = inner, [], [], False
+    def __init__(self, inner, frames: bool = False) -> None:
+        self.inner, self.record_frames = inner, frames
+        self.offsets, self.objects, self.frames, self.closed = [], [], [], False
 
     def reset(self, env_info: dict) -> None:
-        self.offsets, self.objects, self.closed = [], [], False
+        self.offsets, self.objects, self.frames, self.closed = [], [], [], False
         self.inner.reset(env_info)
 
     def act(self, obs) -> np.ndarray:
@@ -119,6 +121,8 @@ class Tracker:
         if not self.closed:
             self.offsets.append(obs.privileged[OBJECT_FROM_HAND] * 100)
             self.objects.append(obs.privileged[OBJECT_POSITION][:2])
+            if self.record_frames:  # cached: the frame the policy read (made now if it skipped this step)
+                self.frames.append(obs.depth)
             self.closed = bool(action[7] > 0)
         return action
 
@@ -141,24 +145,27 @@ def descent(policy: str, episodes: int) -> None:
           f"{np.median(nearest_arr[:, 1]):.1f} cm above; at the close {np.median(at_close):.2f} cm aside")
 
 
-def locate(policy: str, ckpt_path: str, episodes: int) -> None:
+def locate(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None:
     import torch
 
     from runtime.preprocess import FrameStack, normalise
     from trainer.dataset import DEPTH_SCALE
+    from trainer.sim.sensors import make_sensor, reads_clean_depth
     from trainer.student import checkpoint
     from trainer.student.data import column_scale, training_targets
 
     ckpt = checkpoint.load(Path(ckpt_path))
     net = ckpt.policy().eval()
     mean, std = column_scale(training_targets(ckpt.info.data, False))
-    env, tracker = GraspEnv(EnvConfig(objects=KINDS)), Tracker(make_policy(policy))
+    sensor = make_sensor(sensor_spec)
+    env = GraspEnv(EnvConfig(objects=KINDS, render_depth=reads_clean_depth(sensor_spec)))
+    tracker = Tracker(make_policy(policy), frames=True)
     bins = {name: [] for name in HEIGHT_BINS_CM}
     for job in jobs(episodes):
-        run = run_episode(env, tracker, job, record=True)
+        run_episode(env, tracker, job, sensor=sensor)
         history = FrameStack(ckpt.config.obs_horizon)  # the runtime's stacking rule
-        stacks = np.stack([history.push(normalise(f, DEPTH_SCALE, ckpt.info.depth_spec))
-                           for f in run.frames["depth"][: len(tracker.offsets)]])
+        stacks = np.stack([history.push(normalise(frame, DEPTH_SCALE, ckpt.info.depth_spec))
+                           for frame in tracker.frames])
         with torch.no_grad():
             guess = net.object_head(net.encoder(torch.from_numpy(stacks))).numpy()[:, :2] * std + mean
         # against where the object is now, not where it was placed: a hand that strays may push it
@@ -178,6 +185,8 @@ def main() -> None:
                    help="a trainer policy spec (spread, descent, locate)")
     p.add_argument("--checkpoint", help="locate: the student checkpoint whose object head is measured")
     p.add_argument("--episodes", type=int, default=30)
+    p.add_argument("--sensor", default="clean",
+                   help="locate: the depth sensor the policy sees (clean | stereo, as `trainer evaluate`)")
     p.add_argument("--sigma", type=float, nargs="+", default=[0.0, 0.3], help="dart: action noise levels")
     args = p.parse_args()
     if args.what == "locate" and not args.checkpoint:
@@ -189,7 +198,7 @@ def main() -> None:
     elif args.what == "descent":
         descent(args.policy, args.episodes)
     elif args.what == "locate":
-        locate(args.policy, args.checkpoint, args.episodes)
+        locate(args.policy, args.checkpoint, args.episodes, args.sensor)
     else:
         spread(args.policy, args.episodes)
 
