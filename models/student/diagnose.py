@@ -7,6 +7,7 @@
     python models/student/diagnose.py descent student:S.onnx --episodes 30   # where the hand strays off
     python models/student/diagnose.py locate student:S.onnx --checkpoint ckpt.pt   # its object estimate
                                                           [--sensor stereo]    # on what the sensor shows
+    python models/student/diagnose.py parts scripted --checkpoint ckpt.pt --sensor stereo   # holes or values?
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
 look like; ``spread`` regresses a policy's closing offset (object minus grasp site when it first closes the
@@ -15,7 +16,8 @@ error follows. ``descent`` follows the hand before that close: how near it came 
 at what height, and how far it was when it closed. ``locate`` runs a student's training-only object head
 (from ``--checkpoint``) on the frames of a policy's episodes (the student's own, or the expert's), binned by
 the hand's height above the object until the close: whether its idea of where the object is degrades as the
-hand comes near.
+hand comes near. ``parts`` splits what a sensor does to that estimate: its frames, its holes on clean depth,
+its depth with the holes filled from clean depth, and clean depth, over the same steps.
 """
 
 from __future__ import annotations
@@ -145,60 +147,104 @@ def descent(policy: str, episodes: int) -> None:
           f"{np.median(nearest_arr[:, 1]):.1f} cm above; at the close {np.median(at_close):.2f} cm aside")
 
 
+class ObjectEstimate:
+    """A student checkpoint's training-only object head, read in metres over an episode's frames."""
+
+    def __init__(self, ckpt_path: str) -> None:
+        from trainer.student import checkpoint
+        from trainer.student.data import column_scale, training_targets
+
+        self.ckpt = checkpoint.load(Path(ckpt_path))
+        self.net = self.ckpt.policy().eval()
+        self.mean, self.std = column_scale(training_targets(self.ckpt.info.data, False))
+
+    def errors_cm(self, frames: list[np.ndarray], objects: list[np.ndarray]) -> np.ndarray:
+        """Per step: how far the estimate from the frames stacked up to it lies from the object then."""
+        import torch
+
+        from runtime.preprocess import FrameStack, normalise
+        from trainer.dataset import DEPTH_SCALE
+
+        history = FrameStack(self.ckpt.config.obs_horizon)  # the runtime's stacking rule
+        stacks = np.stack([history.push(normalise(frame, DEPTH_SCALE, self.ckpt.info.depth_spec))
+                           for frame in frames])
+        with torch.no_grad():
+            guess = self.net.object_head(self.net.encoder(torch.from_numpy(stacks))).numpy()[:, :2]
+        # against where the object is now, not where it was placed: a hand that strays may push it
+        return np.linalg.norm(guess * self.std + self.mean - np.array(objects), axis=1) * 100
+
+
+def summary(errors: list[float]) -> str:
+    return f"{len(errors)} steps, object estimate off by median {np.median(errors):.2f} cm " \
+           f"(p90 {np.percentile(errors, 90):.2f})"
+
+
 def locate(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None:
-    import torch
-
-    from runtime.preprocess import FrameStack, normalise
-    from trainer.dataset import DEPTH_SCALE
     from trainer.sim.sensors import make_sensor, reads_clean_depth
-    from trainer.student import checkpoint
-    from trainer.student.data import column_scale, training_targets
 
-    ckpt = checkpoint.load(Path(ckpt_path))
-    net = ckpt.policy().eval()
-    mean, std = column_scale(training_targets(ckpt.info.data, False))
-    sensor = make_sensor(sensor_spec)
+    head, sensor = ObjectEstimate(ckpt_path), make_sensor(sensor_spec)
     env = GraspEnv(EnvConfig(objects=KINDS, render_depth=reads_clean_depth(sensor_spec)))
     tracker = Tracker(make_policy(policy), frames=True)
     bins = {name: [] for name in HEIGHT_BINS_CM}
     for job in jobs(episodes):
         run_episode(env, tracker, job, sensor=sensor)
-        history = FrameStack(ckpt.config.obs_horizon)  # the runtime's stacking rule
-        stacks = np.stack([history.push(normalise(frame, DEPTH_SCALE, ckpt.info.depth_spec))
-                           for frame in tracker.frames])
-        with torch.no_grad():
-            guess = net.object_head(net.encoder(torch.from_numpy(stacks))).numpy()[:, :2] * std + mean
-        # against where the object is now, not where it was placed: a hand that strays may push it
-        errors = np.linalg.norm(guess - np.array(tracker.objects), axis=1) * 100
+        errors = head.errors_cm(tracker.frames, tracker.objects)
         for error, offset in zip(errors, tracker.offsets, strict=True):
             bins[next(n for n, (lo, hi) in HEIGHT_BINS_CM.items() if lo <= -offset[2] < hi)].append(error)
     for name, errors in bins.items():
         if errors:
-            print(f"hand {name} cm above the object: {len(errors)} steps, object estimate off by median "
-                  f"{np.median(errors):.2f} cm (p90 {np.percentile(errors, 90):.2f})")
+            print(f"hand {name} cm above the object: {summary(errors)}")
+
+
+def sensor_parts(seen: np.ndarray, clean: np.ndarray) -> dict[str, np.ndarray]:
+    """A sensor's frames split into what it loses and what it gets wrong, each on otherwise clean depth."""
+    return {"the sensor's frames": seen,
+            "its holes, clean depth elsewhere": np.where(seen == 0, 0, clean),
+            "its depth, holes filled with clean depth": np.where(seen == 0, clean, seen),
+            "clean depth": clean}
+
+
+def parts(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None:
+    from trainer.sim.sensors import make_sensor
+
+    head, sensor = ObjectEstimate(ckpt_path), make_sensor(sensor_spec)
+    env, tracker = GraspEnv(EnvConfig(objects=KINDS)), Tracker(make_policy(policy), frames=True)
+    errors, wrong_mm = {}, []
+    for job in jobs(episodes):
+        run = run_episode(env, tracker, job, sensor=sensor, record=True)
+        seen, clean = np.stack(tracker.frames), np.stack(run.frames["depth"][: len(tracker.frames)])
+        for name, frames in sensor_parts(seen, clean).items():
+            errors.setdefault(name, []).extend(head.errors_cm(list(frames), tracker.objects))
+        spec = head.ckpt.info.depth_spec  # the policy's range: normalise clips the rest
+        both = (seen > 0) & (clean >= spec.near_m * 1000) & (clean <= spec.far_m * 1000)
+        wrong_mm.extend(np.abs(seen[both].astype(np.float32) - clean[both]))
+    for name, errs in errors.items():
+        print(f"{name}: {summary(errs)}")
+    print(f"the sensor's depth in the policy's range, off clean depth by median {np.median(wrong_mm):.0f} mm "
+          f"(p90 {np.percentile(wrong_mm, 90):.0f}, p99 {np.percentile(wrong_mm, 99):.0f})")
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", choices=["tolerance", "spread", "dart", "descent", "locate"])
+    p.add_argument("what", choices=["tolerance", "spread", "dart", "descent", "locate", "parts"])
     p.add_argument("policy", nargs="?", default="scripted",
-                   help="a trainer policy spec (spread, descent, locate)")
-    p.add_argument("--checkpoint", help="locate: the student checkpoint whose object head is measured")
+                   help="a trainer policy spec (spread, descent, locate, parts)")
+    p.add_argument("--checkpoint", help="locate, parts: the student checkpoint whose object head is measured")
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--sensor", default="clean",
-                   help="locate: the depth sensor the policy sees (clean | stereo, as `trainer evaluate`)")
+                   help="locate, parts: the depth sensor the policy sees (as evaluate's: clean, stereo, ...)")
     p.add_argument("--sigma", type=float, nargs="+", default=[0.0, 0.3], help="dart: action noise levels")
     args = p.parse_args()
-    if args.what == "locate" and not args.checkpoint:
-        p.error("locate needs --checkpoint (the student whose object head is measured)")
+    if args.what in ("locate", "parts") and not args.checkpoint:
+        p.error(f"{args.what} needs --checkpoint (the student whose object head is measured)")
     if args.what == "tolerance":
         tolerance(args.episodes)
     elif args.what == "dart":
         dart(args.episodes, args.sigma)
     elif args.what == "descent":
         descent(args.policy, args.episodes)
-    elif args.what == "locate":
-        locate(args.policy, args.checkpoint, args.episodes, args.sensor)
+    elif args.what in ("locate", "parts"):
+        (locate if args.what == "locate" else parts)(args.policy, args.checkpoint, args.episodes, args.sensor)
     else:
         spread(args.policy, args.episodes)
 
