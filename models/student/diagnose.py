@@ -209,13 +209,13 @@ def parts(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None:
 
     head, sensor = ObjectEstimate(ckpt_path), make_sensor(sensor_spec)
     env, tracker = GraspEnv(EnvConfig(objects=KINDS)), Tracker(make_policy(policy), frames=True)
+    spec = head.ckpt.info.depth_spec  # the policy's range: normalise clips the rest
     errors, wrong_mm = {}, []
     for job in jobs(episodes):
         run = run_episode(env, tracker, job, sensor=sensor, record=True)
         seen, clean = np.stack(tracker.frames), np.stack(run.frames["depth"][: len(tracker.frames)])
         for name, frames in sensor_parts(seen, clean).items():
             errors.setdefault(name, []).extend(head.errors_cm(list(frames), tracker.objects))
-        spec = head.ckpt.info.depth_spec  # the policy's range: normalise clips the rest
         both = (seen > 0) & (clean >= spec.near_m * 1000) & (clean <= spec.far_m * 1000)
         wrong_mm.extend(np.abs(seen[both].astype(np.float32) - clean[both]))
     for name, errs in errors.items():

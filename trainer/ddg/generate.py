@@ -74,7 +74,7 @@ def generate(cfg: GenerateConfig) -> dict:
                     eta=cfg.eta)
     gen.check_frames(depth)
     with _exclusive(cfg.demos):  # shards started together: the first creates the outputs, the rest see them
-        outs, done = _outputs(_open(cfg.demos), cfg, depth.shape)
+        outs, done = _outputs(_open(cfg.demos), cfg, depth.shape)  # reopened: attrs as the holder left them
     todo = [k for k in range(done.shape[0]) if k % shards == i and not done[k]]
     frames, t0 = 0, time.perf_counter()
     bar = tqdm(todo, desc=f"ddg generate shard {cfg.shard}", unit="chunk")
@@ -105,6 +105,24 @@ def _open(path: str) -> zarr.Group:
     if d.dtype != np.uint16 or d.ndim != 3:
         raise DemoStoreError(f"{path}: data/depth must be uint16 [N, H, W], got {d.dtype} {d.shape}")
     return root
+
+
+def check_generated(root: zarr.Group, key: str, frames: int, demos: str) -> None:
+    """Raise if the DDG depth ``key`` of the first ``frames`` frames of the store ``demos`` is not all made: a
+    chunk no shard has reached yet is zeros, and frames appended since the last run are missing."""
+    generate = f"`python -m trainer ddg generate --demos {demos}`"
+    generated = root[key].shape[0]
+    if generated < frames:
+        raise DemoStoreError(f"{key} holds {generated} frames, the episodes {frames}: the store grew since "
+                             f"DDG depth was generated; run {generate} again")
+    chunk = int(root.attrs["ddg"]["chunk"])
+    needed = -(-frames // chunk)
+    missing = np.flatnonzero(~np.asarray(root["meta/ddg_done"][:needed]))
+    if missing.size:
+        raise DemoStoreError(
+            f"DDG depth of {missing.size} of the {needed} chunks ({chunk} frames each) that these episodes "
+            f"span is not generated yet (first: chunk {missing[0]}); finish it with {generate}, or train on "
+            f"fewer episodes (--episodes)")
 
 
 @contextmanager

@@ -134,22 +134,15 @@ def first_episodes(ends: np.ndarray, episodes: int, path: str | Path) -> np.ndar
 
 
 def check_generated(store: DemoStore, key: str, n: int, path: str | Path) -> None:
-    """DDG depth of a chunk ``trainer ddg generate`` has not reached yet is zeros: refuse to train on it."""
+    """DDG depth not made yet is zeros: refuse it (``trainer.ddg.generate`` records what it made)."""
     if key == "data/depth" or "meta/ddg_done" not in store.root:
         return
-    generate = f"`python -m trainer ddg generate --demos {path}`"
-    generated = store.root[key].shape[0]
-    if generated < n:
-        raise DemoDataError(f"{path}: {key} holds {generated} frames, the episodes {n}: the store grew since "
-                            f"DDG depth was generated; run {generate} again")
-    chunk = int(store.attrs["ddg"]["chunk"])
-    needed = -(-n // chunk)
-    missing = np.flatnonzero(~np.asarray(store.root["meta/ddg_done"][:needed]))
-    if missing.size:
-        raise DemoDataError(
-            f"{path}: DDG depth of {missing.size} of the {needed} chunks ({chunk} frames each) that these "
-            f"episodes span is not generated yet (first: chunk {missing[0]}); finish it with {generate}, "
-            f"or train on fewer episodes (--episodes)")
+    from trainer.ddg import generate
+
+    try:
+        generate.check_generated(store.root, key, n, str(path))
+    except generate.DemoStoreError as exc:
+        raise DemoDataError(f"{path}: {exc}") from None
 
 
 def object_positions(store: DemoStore) -> np.ndarray | None:
