@@ -23,6 +23,7 @@ from trainer.evaluate import object_list
 from trainer.policies import PolicyError, parse
 from trainer.sim.env import EnvConfig
 from trainer.sim.rollout import Job, Rollout, rollouts
+from trainer.sim.sensors import make_sensor
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -37,6 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rgb", action="store_true", help="also store RGB (about 7x slower to render)")
     p.add_argument("--no-depth", action="store_true",
                    help="skip depth rendering (throughput baseline; depth is then stored as zeros)")
+    p.add_argument("--sensor", default="clean",
+                   help="also store what this depth sensor shows the policy at each step (e.g. stereo: "
+                        "hil_sim's active-stereo D455), as data/depth_sensor beside the clean depth; "
+                        "students train on it with --depth-source sensor (clean: nothing more)")
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
     p.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1), help="processes")
     p.add_argument("--action-noise", type=float, default=0.0,
@@ -53,18 +58,21 @@ def _record(r: Rollout, spec_shape: tuple[int, int]) -> EpisodeRecord:
     f = {key: frames[r.taught_from:] for key, frames in r.frames.items()}
     depth = (np.stack(f["depth"]) if f["depth"] and f["depth"][0] is not None
              else np.zeros((len(f["action"]), *spec_shape), np.uint16))
+    optional = {key: np.stack(f[key]) if key in f else None for key in ("rgb", "depth_sensor")}
     return EpisodeRecord(depth, np.stack(f["state"]), np.stack(f["action"]), r.kind, r.seed,
                          tuple(r.episode["crop_window"]), r.camera_K, r.camera_extrinsics, r.episode,
-                         np.stack(f["rgb"]) if "rgb" in f else None)
+                         **optional)
 
 
 def collect(args: argparse.Namespace) -> dict:
     parse(args.teacher)
+    make_sensor(args.sensor)  # an unknown sensor is refused before a store is made
     kinds = object_list(args.objects)
     config = EnvConfig(objects=kinds, render_depth=not args.no_depth, render_rgb=args.rgb)
     spec = DepthSpec()
     store = DemoStore.create(args.out, spec=spec, action_scale=config.action_scale,
                              control_rate_hz=config.control_rate_hz, rgb=args.rgb,
+                             sensor=None if args.sensor == "clean" else args.sensor,
                              attrs={"teacher": args.teacher, "seed": args.seed, "objects": list(kinds),
                                     "action_noise": args.action_noise})
     start_attempt = int(store.attrs["attempted"])
@@ -73,7 +81,7 @@ def collect(args: argparse.Namespace) -> dict:
     bar = tqdm(total=args.episodes, initial=store.n_episodes, desc="collect", unit="ep")
     t0, new = time.perf_counter(), 0
     results = rollouts(config, args.teacher, jobs, workers=args.workers, record=True,
-                       action_noise=args.action_noise)
+                       sensor_spec=args.sensor, action_noise=args.action_noise)
     try:
         for r in results if store.n_episodes < args.episodes else ():
             if r.success:

@@ -5,6 +5,8 @@ Layout (names are a contract):
     data/state   float32 [N, 8]        7 joint angles (rad) + gripper opening (m)
     data/action  float32 [N, 8]        env action: 7 deltas in [-1, 1] before the scale s, gripper -1/+1
     data/rgb     uint8   [N, 96, 128, 3]  optional, same crop and resize as depth
+    data/depth_sensor  uint16 [N, 96, 128]  optional: what the sensor ``attrs["sensor"]`` (e.g. stereo)
+                       showed the policy at that step, as the policy sees it (``collect --sensor``)
     meta/episode_ends       int64   [E]     cumulative end index of each stored (successful) episode
     meta/kind               str     [E]     object kind
     meta/seed               int64   [E]
@@ -13,7 +15,7 @@ Layout (names are a contract):
     meta/camera_extrinsics  float64 [E, 4, 4]  world-from-camera, OpenCV axes
     meta/randomisation      str     [E]     JSON of the episode's draws (hil_sim.world.Episode)
     attrs: depth_spec, action_scale, control_rate_hz, depth_scale (0.001), attempted, succeeded, failed,
-           teacher, seed
+           teacher, seed, sensor (with data/depth_sensor)
 Episodes are appended whole: data arrays first, then the per-episode meta, then ``episode_ends`` last, so
 an interrupted write is cut back to the last complete episode on the next open.
 """
@@ -55,6 +57,7 @@ class EpisodeRecord:
     camera_extrinsics: np.ndarray
     randomisation: dict
     rgb: np.ndarray | None = None
+    depth_sensor: np.ndarray | None = None
 
 
 class DemoStore:
@@ -80,11 +83,16 @@ class DemoStore:
 
     @classmethod
     def create(cls, path: str | Path, *, spec: DepthSpec, action_scale: float, control_rate_hz: float,
-               rgb: bool = False, attrs: dict | None = None) -> DemoStore:
-        """A new empty store, or the existing one at ``path`` reopened for appending (resume)."""
+               rgb: bool = False, sensor: str | None = None, attrs: dict | None = None) -> DemoStore:
+        """A new empty store, or the existing one at ``path`` reopened for appending (resume). ``sensor``: the
+        store keeps that sensor's frames too (``data/depth_sensor``); a store to resume must keep the same."""
         path = Path(path)
         if (path / "zarr.json").is_file():
-            return cls.open(path, mode="a")
+            store = cls.open(path, mode="a")
+            if store.attrs.get("sensor") != sensor:
+                raise DatasetError(f"{str(path)!r} keeps the frames of sensor {store.attrs.get('sensor')!r}, "
+                                   f"not {sensor!r}: resume it with the same sensor, or choose another store")
+            return store
         # Built beside its final name and renamed into place, so neither a reader nor a resume ever sees a
         # store without its arrays (a kill during creation leaves only the ".creating" folder).
         staging = path.with_name(path.name + ".creating")
@@ -98,6 +106,8 @@ class DemoStore:
                   "data/action": ((8,), np.float32)}
         if rgb:
             arrays["data/rgb"] = ((h, w, 3), np.uint8)
+        if sensor is not None:
+            arrays["data/depth_sensor"] = ((h, w), np.uint16)
         for name, (shape, dtype) in arrays.items():
             root.create_array(name, shape=(0, *shape), chunks=(_CHUNK_STEPS, *shape), dtype=dtype,
                               compressors=BloscCodec(cname="zstd", clevel=5, shuffle="bitshuffle"))
@@ -106,7 +116,8 @@ class DemoStore:
             root.create_array(f"meta/{name}", shape=(0, *shape), chunks=(4096, *shape), dtype=dtype)
         root.attrs.update({"depth_spec": spec.to_dict(), "action_scale": action_scale,
                            "control_rate_hz": control_rate_hz, "depth_scale": DEPTH_SCALE,
-                           "attempted": 0, "succeeded": 0, "failed": 0, **(attrs or {})})
+                           "attempted": 0, "succeeded": 0, "failed": 0, **(attrs or {}),
+                           **({"sensor": sensor} if sensor is not None else {})})
         try:
             staging.rename(path)
         except OSError as exc:
@@ -129,10 +140,11 @@ class DemoStore:
     def append(self, ep: EpisodeRecord) -> None:
         steps = len(ep.action)
         arrays = {"depth": ep.depth, "state": ep.state, "action": ep.action}
-        if "rgb" in self._data_arrays():
-            if ep.rgb is None:
-                raise DatasetError("this store keeps RGB but the episode has none")
-            arrays["rgb"] = ep.rgb
+        for name, what in (("rgb", "RGB"), ("depth_sensor", "sensor frames")):
+            if name in self._data_arrays():
+                if getattr(ep, name) is None:
+                    raise DatasetError(f"this store keeps {what} but the episode has none")
+                arrays[name] = getattr(ep, name)
         for name, value in arrays.items():
             if len(value) != steps:
                 raise DatasetError(f"episode {name} has {len(value)} steps, action has {steps}")

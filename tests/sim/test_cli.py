@@ -37,6 +37,40 @@ def test_collect_writes_depth_demos_and_resumes(tmp_path) -> None:
     np.testing.assert_array_equal(store.episode(0)["depth"], first["depth"])
 
 
+def left_half_lost(_arg: str):
+    """A sensor for the test below (``tests.sim.test_cli:left_half_lost``): no data in the left half."""
+    def sensor(depth: np.ndarray) -> np.ndarray:
+        out = depth.copy()
+        out[..., : depth.shape[-1] // 2] = 0
+        return out
+    return sensor
+
+
+def test_collect_with_a_sensor_keeps_its_frames_beside_the_clean_depth(tmp_path, capsys) -> None:
+    from trainer.student.data import DemoDataError, DemoDataset
+
+    out = tmp_path / "demos.zarr"
+    args = ["--objects", "cube", "--out", str(out), "--workers", "1", "--seed", "3"]
+    assert collect_main(["--episodes", "1", *args, "--sensor", "tests.sim.test_cli:left_half_lost"]) == 0
+    store = DemoStore.open(out)
+    episode = store.episode(0)
+    assert store.attrs["sensor"] == "tests.sim.test_cli:left_half_lost"
+    assert (episode["depth"] > 0).mean() > 0.5  # the clean depth, untouched
+    np.testing.assert_array_equal(episode["depth_sensor"], left_half_lost("")(episode["depth"]))
+    frames = DemoDataset(out, "sensor", obs_horizon=1, action_horizon=2).depth
+    np.testing.assert_array_equal(frames, episode["depth_sensor"])
+    # resumed with another sensor, or trained on sensor frames a store never kept: refused by name
+    assert collect_main(["--episodes", "2", *args]) == 2
+    err = capsys.readouterr().err
+    assert "keeps the frames of sensor 'tests.sim.test_cli:left_half_lost', not None" in err
+    assert collect_main(["--episodes", "1", *args, "--out", str(tmp_path / "plain.zarr")]) == 0
+    assert "depth_sensor" not in DemoStore.open(tmp_path / "plain.zarr").root["data"]
+    with pytest.raises(DemoDataError, match="no data/depth_sensor .* `python -m trainer collect --sensor`"):
+        DemoDataset(tmp_path / "plain.zarr", "sensor", obs_horizon=1, action_horizon=2)
+    assert collect_main(["--episodes", "1", *args, "--out", str(tmp_path / "x.zarr"), "--sensor", "fog"]) == 2
+    assert "unknown sensor 'fog'" in capsys.readouterr().err and not (tmp_path / "x.zarr").exists()
+
+
 def test_dart_demos_record_their_noise_and_a_negative_one_is_refused(tmp_path, capsys) -> None:
     args = ["--episodes", "1", "--objects", "cube", "--workers", "1", "--no-depth"]
     assert collect_main([*args, "--out", str(tmp_path / "dart.zarr"), "--action-noise", "0.3"]) == 0

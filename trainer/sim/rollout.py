@@ -35,7 +35,8 @@ class Rollout:
     camera_K: np.ndarray
     camera_extrinsics: np.ndarray
     frames: dict[str, list[np.ndarray]] = field(default_factory=dict)
-    """When recording: per step ``depth``, ``state``, ``action`` (and ``rgb``), observed before acting."""
+    """When recording: per step ``depth``, ``state``, ``action`` (and ``rgb``; with a sensor,
+    ``depth_sensor``: the frame it showed the policy), observed before acting."""
     taught_from: int = 0
     """First step a teacher acted (a takeover policy's switch step; 0 for a teacher alone)."""
     closed_at: tuple[int, np.ndarray] | None = None
@@ -82,19 +83,20 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
     rollout = Rollout(job.seed, job.kind, False, 0, info["episode"], env.world.intr.K,
                       env.world.camera_extrinsics())
     if record:
-        rollout.frames = {k: [] for k in ("depth", "state", "action", *(["rgb"] if "rgb" in info else []))}
+        extra = (["rgb"] if "rgb" in info else []) + (["depth_sensor"] if sensor is not None else [])
+        rollout.frames = {k: [] for k in ("depth", "state", "action", *extra)}
     obs = env.observation()
     while True:
         depth = info.get("depth")
-        seen = partial(observe, sensor, env, depth, restore)
-        action = np.asarray(policy.act(Observation(obs, seen, info["state"])), np.float32)
+        observation = Observation(obs, partial(observe, sensor, env, depth, restore), info["state"])
+        action = np.asarray(policy.act(observation), np.float32)
         if rollout.closed_at is None and action[7] > 0:
             rollout.closed_at = (rollout.steps, obs[OBJECT_FROM_HAND].copy())
         if record:
-            for key, value in (("depth", depth), ("state", info["state"]), ("action", action),
-                               ("rgb", info.get("rgb"))):
-                if key in rollout.frames:
-                    rollout.frames[key].append(value)
+            values = {"depth": depth, "state": info["state"], "action": action, "rgb": info.get("rgb")}
+            # the sensor's frame is the one the policy read (made now if it did not read one)
+            for key, frames in rollout.frames.items():
+                frames.append(observation.depth if key == "depth_sensor" else values[key])
         obs, _, terminated, truncated, info = env.step(perturb(action, action_noise, rng))
         rollout.steps += 1
         if terminated or truncated:
@@ -132,8 +134,10 @@ _WORKER: dict = {}
 
 def _init(config: EnvConfig, policy_spec: str, record: bool, sensor_spec: str, restore: str,
           action_noise: float) -> None:
-    _WORKER.update(env=GraspEnv(config), policy=make_policy(policy_spec), record=record,
-                   sensor=make_sensor(sensor_spec), restore=restore, action_noise=action_noise)
+    # "clean" is no sensor model: the policy reads the env's depth, and a recording has nothing to add
+    sensor = None if sensor_spec == "clean" else make_sensor(sensor_spec)
+    _WORKER.update(env=GraspEnv(config), policy=make_policy(policy_spec), record=record, sensor=sensor,
+                   restore=restore, action_noise=action_noise)
 
 
 def _work(job: Job) -> Rollout:

@@ -23,8 +23,12 @@ from runtime.preprocess import DepthSpec, normalise
 from trainer.dataset import DemoStore
 
 DEPTH_ARRAYS = {"gt": "data/depth", "randnoise": "data/depth", "ddg": "data/depth_ddg",
-                "ddg_nograft": "data/depth_ddg_nograft"}
-"""Depth source -> stored array. randnoise is procedural: applied to the GT frames at sampling time."""
+                "ddg_nograft": "data/depth_ddg_nograft", "sensor": "data/depth_sensor"}
+"""Depth source -> stored array. randnoise is procedural: applied to the GT frames at sampling time; sensor is
+what a simulated sensor showed at each step (``collect --sensor``)."""
+MAKE_ARRAY = {"data/depth_ddg": "python -m trainer ddg generate", "data/depth_ddg_nograft":
+              "python -m trainer ddg generate", "data/depth_sensor": "python -m trainer collect --sensor"}
+"""The command that adds a stored array a store lacks."""
 
 
 class DemoDataError(ValueError):
@@ -68,7 +72,7 @@ class DemoDataset:
         key = DEPTH_ARRAYS[depth_source]
         if key not in store.root:
             raise DemoDataError(f"{path} has no {key} for depth source {depth_source!r} "
-                                f"(run `python -m trainer ddg generate` first)")
+                                f"(make it with `{MAKE_ARRAY[key]}`)")
         self.ends = first_episodes(store.episode_ends, episodes, path)
         n = int(self.ends[-1])
         check_generated(store, key, n, path)

@@ -97,7 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m trainer student probe", description=__doc__.split("\n\n")[0])
     p.add_argument("--policy", required=True, help="student.onnx written by `python -m export`")
     p.add_argument("--demos", required=True, help="demo store (zarr) to compare with")
-    p.add_argument("--depth-source", default="gt", help="gt | randnoise | ddg | ddg_nograft (default gt)")
+    p.add_argument("--depth-source", default="gt",
+                   help="gt | randnoise | ddg | ddg_nograft | sensor (default gt)")
     p.add_argument("--every", type=int, default=97, help="probe every N-th demo step (default 97)")
     p.add_argument("--checkpoint", help="the run's ckpt.pt: also report the object head's error (cm)")
     args = p.parse_args(argv)

@@ -45,7 +45,7 @@ class FitConfig:
     out: str
     """Run folder: ckpt.pt (resumed if present), loss.png, summary.json."""
     depth_source: str = "gt"
-    """Depth the student sees: gt | randnoise | ddg | ddg_nograft."""
+    """Depth the student sees: gt | randnoise | ddg | ddg_nograft | sensor (what `collect --sensor` kept)."""
     episodes: int = 0
     """Train on the store's first this many episodes (0 = all): e.g. those whose DDG depth is generated
     while `trainer ddg generate` is still working through the rest."""
