@@ -25,6 +25,9 @@
 #   models/student/table2.sh ddgb6k_all DDG (b) depth of all 6000 demos (resumable)
 #   models/student/table2.sh ddgb4k     `ddgb6k`'s fine-tune on DDG (b) depth of the first 4000 demos (once
 #                                       ddgb6k_all has reached them), its held-out object estimate and key cells
+#   models/student/table2.sh sensor [N] the ceiling of any generator of the stereo sensor: `ddgb6k`'s fine-tunes
+#                                       on the sensor's own frames of the first N (default 1000) of the same demos,
+#                                       its object estimate on the sensor's frames and key cells
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -68,7 +71,8 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           # `ddgb6k`: the best GT student (6000 demos) fine-tuned on DDG (b) depth; `key` names it
           "ddgb6k_hpos_8k_x4 runs/student/ddgb6k_hpos_8k_x4.onnx none"
           "ddgb6k_hpos_more_12k_x4 runs/student/ddgb6k_hpos_more_12k_x4.onnx none"
-          "ddgb4k_hpos_more_12k_x4 runs/student/ddgb4k_hpos_more_12k_x4.onnx none")  # `ddgb4k`
+          "ddgb4k_hpos_more_12k_x4 runs/student/ddgb4k_hpos_more_12k_x4.onnx none"  # `ddgb4k`
+          "sensor_hpos_more_12k_x4 runs/student/sensor_hpos_more_12k_x4.onnx none")  # `sensor`
 
 cell() {  # name model restore sensor objects episodes [folder]
     local json=${7:-runs/table2}/$1_$4_$5_$6.json
@@ -379,4 +383,20 @@ ddgb4k() {
     key "${name}_x4"
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k [NAME...]}"
+sensor() {  # [N]
+    # docs/student.md "Trained on the sensor itself": `ddgb6k`'s two fine-tunes (same start, steps, lr) on what the
+    # stereo sensor showed at each step of the first N demos (seeds 0..: collect replays demos_seen.zarr's episodes
+    # and keeps both depths), a student no generator of this sensor can beat; not a baseline (it trains on the
+    # evaluation's sensor), the ceiling of the DDG (b) route
+    local n=${1:-1000} demos=runs/sim/demos_seen_stereo.zarr name=sensor_hpos_more_12k
+    local recipe="--hand-pose --object-offset --hand-target --seen-offset --episodes $n"
+    python -m trainer collect --episodes "$n" --seed 0 --sensor stereo --workers 2 --out $demos
+    finetune sensor_hpos_8k $demos sensor 2 $recipe --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    finetune $name $demos sensor 2 $recipe --steps 12000 --init runs/student/sensor_hpos_8k/ckpt.pt
+    python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
+    python models/student/diagnose.py locate scripted --checkpoint "runs/student/$name/ckpt.pt" --episodes 30 \
+        --sensor stereo
+    key "${name}_x4"
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor [NAME...]}"

@@ -1,3 +1,5 @@
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -97,4 +99,31 @@ def test_banks_of_two_depth_ranges_are_not_mixed(tmp_path):
     save_bank(wide, tmp_path / "wide.npz")
     with pytest.raises(ValueError, match="far_m 6.0"):
         fit(FitConfig(steps=1, bank=(str(tmp_path / "wide.npz"),), run=str(tmp_path / "r"),
+                      out=str(tmp_path / "m"), batch=2, patch=(32, 32), channels=(8, 8, 16), threads=1))
+
+
+def test_an_exact_prior_leaves_what_the_sensor_gets_wrong_to_the_target(tmp_path):
+    from trainer.ddg.bank import BankConfig, build_bank, concat_banks, training_arrays
+    from trainer.ddg.data import RealFrame
+
+    exact = np.rint(np.linspace(1400, 900, 96))[:, None].repeat(128, axis=1).astype(np.uint16)
+    sensed = exact.copy()
+    sensed[40:56, 50:80] -= 150  # a patch the sensor sees 15 cm too near
+    frames = [RealFrame(f"f{i}", sensed, "d4xx", "s", i, exact_mm=exact) for i in range(2)]
+    cfg = BankConfig(crops=1, depth_jitter=(1.0, 1.0), scale_range=(1.0, 1.0))  # the whole frame
+    fused, exact_bank = (build_bank(frames, replace(cfg, prior=p)) for p in ("fused", "exact"))
+
+    def step(a: np.ndarray) -> float:  # the patch against the same rows beside it, in c or x0 units
+        return float(np.median(a[0, 44:52, 55:75]) - np.median(a[0, 44:52, 90:110]))
+
+    (x0_f, c_f), (x0_e, c_e) = training_arrays(fused), training_arrays(exact_bank)
+    assert step(c_f) < -0.05 and step(x0_f) < -0.05  # fused: the wrong depth is in c, nothing to learn
+    assert abs(step(c_e)) < 0.01 and step(x0_e) < -0.05  # exact: c is the true scene, x0 the wrong patch
+    with pytest.raises(ValueError, match="different priors"):
+        concat_banks([fused, exact_bank])
+    with pytest.raises(ValueError, match="needs each frame's exact depth .* 2 frames have none"):
+        build_bank([replace(f, exact_mm=None) for f in frames], replace(cfg, prior="exact"))
+    save_bank(exact_bank, tmp_path / "exact.npz")
+    with pytest.raises(ValueError, match="--prior fused but the crop bank was made with prior exact"):
+        fit(FitConfig(steps=1, bank=(str(tmp_path / "exact.npz"),), run=str(tmp_path / "r"),
                       out=str(tmp_path / "m"), batch=2, patch=(32, 32), channels=(8, 8, 16), threads=1))

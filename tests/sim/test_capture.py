@@ -27,6 +27,10 @@ def test_frames_read_back_as_d4xx_sequences_one_per_episode(tmp_path):
     holes = np.mean([np.mean(f.depth_mm == 0) for f in frames])
     assert 0.01 < holes < 0.9  # a stereo frame: depth with holes, neither empty nor complete
     assert len(fused_frames(frames)) == 4  # the DDG's temporal fusion runs over each episode's frames
+    for f in frames:  # the renderer's exact depth of the same view, for `ddg fit --prior exact`
+        both = (f.depth_mm > 0) & (f.exact_mm > 0)
+        assert f.exact_mm.shape == f.depth_mm.shape and both.mean() > 0.3
+        assert np.median(np.abs(f.depth_mm[both].astype(int) - f.exact_mm[both])) < 15
     manifest = json.loads((tmp_path / "a" / "MANIFEST.json").read_text())
     assert manifest["n_frames"] == 4 and "RealSense D455" in manifest["frames"][0]["sensor"]
 

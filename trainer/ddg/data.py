@@ -52,6 +52,10 @@ class RealFrame:
     window: tuple[int, int] | None = None
     """(top, left) of the policy's crop when the frame was taken by the robot's own camera (a simulated
     capture records its episode's window); None for captures from elsewhere."""
+    exact_mm: np.ndarray | None = None
+    """The scene's exact depth of the same view, where something independent of the sensor knows it (a
+    simulated capture's renderer: what a perfect monocular estimator would make of the RGB); ``ddg fit
+    --prior exact`` conditions on it instead of the sensor's own depth. None for real captures."""
 
 
 def metres_to_mm(depth_m: np.ndarray, name: str = "depth") -> np.ndarray:
@@ -140,10 +144,15 @@ def _load_frame(f: Path, meta: dict) -> RealFrame:
     rgb = z["rgb"] if "rgb" in z.files else None
     if rgb is not None and rgb.shape[:2] != depth.shape:
         raise RealDataError(f"{f}: rgb {rgb.shape[:2]} and depth {depth.shape} resolutions differ")
+    exact = metres_to_mm(np.asarray(z["exact_depth_m"], np.float64), f"{f} exact_depth_m") \
+        if "exact_depth_m" in z.files else None
+    if exact is not None and exact.shape != depth.shape:
+        raise RealDataError(f"{f}: exact_depth_m {exact.shape} and depth {depth.shape} resolutions differ")
     _check_forbidden(f, meta)
     seq = meta.get("sequence_id") or f.stem
     window = tuple(meta["policy_window"]) if "policy_window" in meta else None
-    return RealFrame(f.stem, depth, _sensor_kind(meta), seq, int(meta.get("frame_index") or 0), rgb, window)
+    return RealFrame(f.stem, depth, _sensor_kind(meta), seq, int(meta.get("frame_index") or 0), rgb, window,
+                     exact)
 
 
 def _sensor_kind(meta: dict) -> str:

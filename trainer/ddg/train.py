@@ -16,7 +16,16 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from .bank import BankConfig, bank_spec, build_bank, concat_banks, load_bank, save_bank, training_arrays
+from .bank import (
+    BankConfig,
+    bank_prior,
+    bank_spec,
+    build_bank,
+    concat_banks,
+    load_bank,
+    save_bank,
+    training_arrays,
+)
 from .data import POLICY_SPEC, load_real_dir, split
 from .graft import HOLE_THRESHOLD
 from .model import UNetConfig, build_unet, ddpm_scheduler, save_model
@@ -66,6 +75,12 @@ class FitConfig:
     then uses it too. The policy's own 1.5 m flattens everything beyond it, so a loss that grows with range
     past it (a stereo camera's far floor) cannot be learnt; a larger value can. The student still clips at
     1.5 m."""
+    prior: str = "fused"
+    """What the condition c is made from in training: fused (the sensor's own depth, holes filled: the
+    offline default) or exact (the scene's exact depth of the same view, which simulated captures carry: the
+    stand-in for a perfect RGB depth prior). With fused, c already holds what the sensor gets wrong, so the
+    generator can learn only its holes; with exact it can learn its wrong depth too. Generation always
+    conditions on the simulated depth."""
 
 
 def fit(cfg: FitConfig) -> Path:
@@ -165,15 +180,19 @@ def _bank(cfg: FitConfig, run: Path) -> tuple[dict[str, np.ndarray], list[str]]:
         bank = concat_banks([load_bank(Path(b)) for b in cfg.bank])
     else:
         far = "" if cfg.far_m == POLICY_SPEC.far_m else f"_far{cfg.far_m:g}"
-        cached = run / f"bank_{cfg.sensors}_{cfg.crops}_{cfg.seed}{far}.npz"
+        exact = "" if cfg.prior == "fused" else f"_{cfg.prior}"
+        cached = run / f"bank_{cfg.sensors}_{cfg.crops}_{cfg.seed}{far}{exact}.npz"
         if cached.exists():
             bank = load_bank(cached)
         else:
             train, _ = split(load_real_dir(cfg.real, cfg.sensors))
-            bank = build_bank(train, BankConfig(crops=cfg.crops, seed=cfg.seed, far_m=cfg.far_m))
+            bank = build_bank(train, BankConfig(crops=cfg.crops, seed=cfg.seed, far_m=cfg.far_m,
+                                                prior=cfg.prior))
             save_bank(bank, cached)
     if bank_spec(bank).far_m != cfg.far_m:
         raise ValueError(f"--far-m {cfg.far_m} but the crop bank was made with far_m {bank_spec(bank).far_m}")
+    if bank_prior(bank) != cfg.prior:
+        raise ValueError(f"--prior {cfg.prior} but the crop bank was made with prior {bank_prior(bank)}")
     return bank, [str(n) for n in bank["names"]]
 
 
