@@ -1,4 +1,5 @@
-"""``python -m trainer ddg fit|generate|metrics``: a thin table of subcommands over the DDG modules."""
+"""``python -m trainer ddg fit|generate|metrics|paired|bench``: a thin table of subcommands over the DDG
+modules."""
 
 from __future__ import annotations
 
@@ -15,6 +16,8 @@ SUBCOMMANDS = {
                  "add depth_ddg / depth_ddg_nograft to a demo store"),
     "metrics": ("trainer.ddg.metrics", "MetricsConfig", "run_metrics",
                 "realism of each depth source vs held-out real frames (Table I)"),
+    "paired": ("trainer.ddg.paired", "PairedConfig", "paired",
+               "each source's depth against the exact depth of the same view (simulated captures)"),
     "bench": ("trainer.ddg.bench", "BenchConfig", "bench",
               "generation throughput per session mode, batch and DDIM step count"),
 }
