@@ -127,26 +127,3 @@ def test_an_exact_prior_leaves_what_the_sensor_gets_wrong_to_the_target(tmp_path
     with pytest.raises(ValueError, match="--prior fused but the crop bank was made with prior exact"):
         fit(FitConfig(steps=1, bank=(str(tmp_path / "exact.npz"),), run=str(tmp_path / "r"),
                       out=str(tmp_path / "m"), batch=2, patch=(32, 32), channels=(8, 8, 16), threads=1))
-
-
-def test_a_residual_model_records_its_target_and_generation_decodes_it_around_c(tmp_path, monkeypatch):
-    from trainer.ddg import sample
-    from trainer.ddg.model import load_config
-    from trainer.ddg.prior import fill_holes
-
-    save_bank(_tiny_bank(), tmp_path / "bank.npz")
-    common = dict(steps=1, bank=(str(tmp_path / "bank.npz"),), batch=2, patch=(32, 32), channels=(8, 8, 16),
-                  threads=1)
-    models = {t: fit(FitConfig(**common, target=t, run=str(tmp_path / t), out=str(tmp_path / f"{t}_model")))
-              for t in ("relative", "residual")}
-    assert load_config(models["residual"])["x0_scale"] == "residual"
-    # an output of 0.5 everywhere: "no departure from c" on the residual target, mid-range on the relative one
-    monkeypatch.setattr(sample, "ddim_sample", lambda eps, c, *a, **k: np.full(c.shape, 0.5, np.float32))
-    sim = np.stack([scene(np.random.default_rng(i)) for i in range(2)])
-    out = {t: sample.Generator(m, steps=2, threads=1)(sim, np.arange(2))[1] for t, m in models.items()}
-    prior_depth = np.stack([fill_holes(d) for d in sim]).astype(int)  # what c holds, in mm
-    # (c clips each frame at its 1st and 99th percentile, so the extremes of a frame saturate)
-    assert np.mean(np.abs(out["residual"] - prior_depth) <= 2) > 0.97
-    assert np.mean(np.abs(out["relative"] - prior_depth) <= 2) < 0.1
-    with pytest.raises(ValueError, match="unknown target 'metric'"):
-        fit(FitConfig(**common, target="metric", run=str(tmp_path / "m"), out=str(tmp_path / "mm")))

@@ -22,7 +22,7 @@ from tqdm import tqdm
 from runtime.preprocess import DepthSpec, crop_resize
 
 from .data import POLICY_SPEC, RealFrame, crop_spec
-from .graft import X0_SCALES, encode
+from .graft import encode
 from .prior import DepthPrior, temporal_fuse
 
 
@@ -109,16 +109,13 @@ def bank_prior(bank: dict[str, np.ndarray]) -> str:
     return str(bank.get("prior", "fused"))
 
 
-def training_arrays(bank: dict[str, np.ndarray], target: str = "relative") -> tuple[np.ndarray, np.ndarray]:
-    """(x0, c) float32 [N, H, W] on the generator's scale; ``target``: relative or residual (``graft``)."""
+def training_arrays(bank: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(x0, c) float32 [N, H, W] on the generator's scale."""
     if "scale" not in bank:
         raise ValueError("crop bank has no 'scale' array (built before the relative target); rebuild it")
-    if target not in X0_SCALES:
-        raise ValueError(f"unknown target {target!r}: one of {', '.join(X0_SCALES)}")
-    spec, c = bank_spec(bank), bank["c"].astype(np.float32)
-    x0 = np.stack([encode(d, s, spec, ci if target == "residual" else None)
-                   for d, s, ci in zip(bank["depth_mm"], bank["scale"], c, strict=True)])
-    return x0, c
+    spec = bank_spec(bank)
+    x0 = np.stack([encode(d, s, spec) for d, s in zip(bank["depth_mm"], bank["scale"], strict=True)])
+    return x0, bank["c"].astype(np.float32)
 
 
 def concat_banks(banks: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:

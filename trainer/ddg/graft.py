@@ -6,12 +6,6 @@ are -1. So for the geometry it only has to copy ``c``; what it learns is where a
 target would ask it to guess absolute depth from relative ``c``, which it cannot.) ``encode`` makes training
 targets from real crops, ``decode`` turns output back into uint16 mm with the simulated frame's own scale.
 
-With the ``residual`` target (``ddg fit --target residual``) the generator outputs, on the same scale, only
-how far the sensor's depth departs from ``c``: ``0.5 + tanh(RESIDUAL_GAIN * (x - (c + 1) / 2)) / 2`` for valid
-depth ``x``, holes still -1. Its output errors then cost ~1/RESIDUAL_GAIN as much depth near ``c``, where
-nearly every pixel is; large departures (a mismatch, 10 % of the frame's range and more) are compressed, not
-lost. Worth it only when ``c`` is the true scene (``--prior exact``): otherwise the departures are all holes.
-
 A predicted pixel is a hole when its value is below ``HOLE_THRESHOLD`` = -0.5 (dimensionless, on that
 scale): half way between "no data" (-1) and the nearest valid depth of the frame (0). Grafting then keeps the
 simulator's exact depth wherever the generator did not predict a hole: ``d = d_sim * (1 - M) + d_pred * M``
@@ -29,37 +23,27 @@ from runtime.preprocess import DepthSpec, normalise
 from .prior import relative_depth
 
 HOLE_THRESHOLD = -0.5
-X0_SCALES = ("relative", "residual")
-"""Targets a model's config may record (``x0_scale``); others (the first trainer's metric one) are refused."""
-RESIDUAL_GAIN = 10.0
-"""How much the residual target magnifies a departure from c (units of the frame's relative depth)."""
+X0_SCALE = "relative"
+"""Recorded in a model's config: models trained on another target scale (the first: metric) are refused."""
 
 
 class GraftError(ValueError):
     """Mismatched or non-uint16 depth maps handed to grafting."""
 
 
-def encode(depth_mm: np.ndarray, scale: tuple[float, float], spec: DepthSpec, c: np.ndarray | None = None
-           ) -> np.ndarray:
+def encode(depth_mm: np.ndarray, scale: tuple[float, float], spec: DepthSpec) -> np.ndarray:
     """uint16 mm frame -> float32 on the relative scale ``scale`` = (lo, span) of ``normalise``d depth: the
-    condition's own map (``relative_depth``) moved from [-1, 1] to [0, 1], holes -1. Given ``c``: the
-    residual target, the departure from it."""
+    condition's own map (``relative_depth``) moved from [-1, 1] to [0, 1], holes -1."""
     rel = (relative_depth(normalise(depth_mm, 0.001, spec), scale) + 1.0) / 2.0
-    if c is not None:
-        rel = 0.5 + 0.5 * np.tanh(RESIDUAL_GAIN * (rel - (c + 1.0) / 2.0))
     return np.where(depth_mm == 0, np.float32(-1.0), rel).astype(np.float32)
 
 
-def decode(pred: np.ndarray, scales: np.ndarray, spec: DepthSpec, threshold: float = HOLE_THRESHOLD,
-           c: np.ndarray | None = None) -> np.ndarray:
+def decode(pred: np.ndarray, scales: np.ndarray, spec: DepthSpec, threshold: float = HOLE_THRESHOLD
+           ) -> np.ndarray:
     """Generator output [B, H, W] on each frame's relative scale (``scales`` [B, 2] = lo, span, as a crop bank
-    stores them) -> uint16 mm, holes = 0. Given ``c`` [B, H, W], the output is the residual target."""
+    stores them) -> uint16 mm, holes = 0."""
     lo, span = (np.asarray(scales, np.float32)[:, i, None, None] for i in (0, 1))
-    rel = np.clip(pred, 0.0, 1.0)
-    if c is not None:  # the clip keeps arctanh finite: departures past ~0.35 of the range saturate
-        rel = np.clip((c + 1.0) / 2.0 + np.arctanh(np.clip(2.0 * rel - 1.0, -0.998, 0.998)) / RESIDUAL_GAIN,
-                      0.0, 1.0)
-    metres = spec.near_m + (lo + rel * span) * np.float32(spec.far_m - spec.near_m)
+    metres = spec.near_m + (lo + np.clip(pred, 0.0, 1.0) * span) * np.float32(spec.far_m - spec.near_m)
     mm = np.clip(np.rint(metres * 1000.0), 1, 65535).astype(np.uint16)
     return np.where(pred < threshold, np.uint16(0), mm)
 

@@ -17,7 +17,7 @@ from diffusers import DDIMScheduler, DDPMScheduler, UNet2DModel
 from runtime.preprocess import DepthSpec
 
 from .data import POLICY_SPEC
-from .graft import X0_SCALES
+from .graft import X0_SCALE
 
 
 class ModelDirError(ValueError):
@@ -83,13 +83,12 @@ class EpsNet(torch.nn.Module):
         return self.unet(x, t).sample
 
 
-def save_model(out: Path, unet: UNet2DModel, cfg: UNetConfig, spec: DepthSpec, extra: dict,
-               x0_scale: str = X0_SCALES[0]) -> None:
+def save_model(out: Path, unet: UNet2DModel, cfg: UNetConfig, spec: DepthSpec, extra: dict) -> None:
     from safetensors.torch import save_file
 
     out.mkdir(parents=True, exist_ok=True)
     save_file({k: v.contiguous() for k, v in unet.state_dict().items()}, out / "unet.safetensors")
-    config = {"unet": asdict(cfg), "depth_spec": spec.to_dict(), "x0_scale": x0_scale, **extra}
+    config = {"unet": asdict(cfg), "depth_spec": spec.to_dict(), "x0_scale": X0_SCALE, **extra}
     (out / "config.json").write_text(json.dumps(config, indent=1))
     export_onnx(unet, spec, out / "unet.onnx")
 
@@ -99,11 +98,11 @@ def load_config(model_dir: str | Path) -> dict:
     if not f.is_file():
         raise ModelDirError(f"{model_dir}: no config.json (not a DDG model directory)")
     raw = json.loads(f.read_text())
-    if raw.get("x0_scale") not in X0_SCALES or "prediction" not in raw["unet"]:
+    if raw.get("x0_scale") != X0_SCALE or "prediction" not in raw["unet"]:
         old = raw.get("x0_scale", "metric"), raw["unet"].get("prediction", "eps")
         was = f"target scale {old[0]}, prediction {old[1]}"
         raise ModelDirError(f"{model_dir}: made by an older trainer ({was}); this version decodes the "
-                            f"{' or '.join(X0_SCALES)} scale and needs the prediction type: retrain it")
+                            f"{X0_SCALE} scale and needs the prediction type: retrain it")
     raw["unet"] = UNetConfig(**{**raw["unet"], "channels": tuple(raw["unet"]["channels"])})
     raw["depth_spec"] = DepthSpec.from_dict(raw["depth_spec"])
     return raw

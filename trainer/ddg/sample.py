@@ -103,7 +103,6 @@ class Generator:
         self.scheduler = ddim_scheduler(cfg["unet"], steps)
         self.eps = OnnxEps(model_dir, threads, mode) if backend == "onnx" else TorchEps(model_dir)
         self.prior = DepthPrior(self.spec)
-        self.residual = cfg["x0_scale"] == "residual"
 
     def check_frames(self, sim_mm) -> None:
         """Refuse frames not at the model's resolution (the U-Net is fully convolutional: it would run)."""
@@ -119,6 +118,6 @@ class Generator:
         noise = frame_noise(self.seed, indices, sim_mm.shape[1:])
         pred = ddim_sample(self.eps, c, noise, self.scheduler, self.eta,
                            lambda k: frame_noise(self.seed, indices, sim_mm.shape[1:], k))
-        pred_mm = decode(pred, np.array(scale), self.spec, self.threshold, c if self.residual else None)
+        pred_mm = decode(pred, np.array(scale), self.spec, self.threshold)
         grafted = np.stack([graft(s, p, self.spec) for s, p in zip(sim_mm, pred_mm, strict=True)])
         return grafted, pred_mm

@@ -81,9 +81,6 @@ class FitConfig:
     stand-in for a perfect RGB depth prior). With fused, c already holds what the sensor gets wrong, so the
     generator can learn only its holes; with exact it can learn its wrong depth too. Generation always
     conditions on the simulated depth."""
-    target: str = "relative"
-    """What the U-Net learns to output: relative (the sensor's depth on c's relative scale) or residual (only
-    its departure from c, magnified: trainer/ddg/graft.py); the model records it and generation decodes it."""
 
 
 def fit(cfg: FitConfig) -> Path:
@@ -101,7 +98,7 @@ def fit(cfg: FitConfig) -> Path:
     state = _resume(run / "ckpt.pt", unet, ema, opt, sched)
     step, losses, elapsed = state["step"], state["losses"], state["elapsed"]
     noise_sched = ddpm_scheduler(ucfg)
-    x0_all, c_all = (torch.from_numpy(a).to(cfg.device) for a in training_arrays(bank, cfg.target))
+    x0_all, c_all = (torch.from_numpy(a).to(cfg.device) for a in training_arrays(bank))
     t0 = time.monotonic() - elapsed
     bar = tqdm(range(step, cfg.steps), initial=step, total=cfg.steps, desc="ddg fit")
     for step in bar:
@@ -118,7 +115,7 @@ def fit(cfg: FitConfig) -> Path:
     minutes = (time.monotonic() - t0) / 60
     extra = {"hole_threshold": HOLE_THRESHOLD, "train": {**asdict(cfg), "steps_done": len(losses),
              "train_minutes": round(minutes, 2), "n_crops": int(len(bank["c"]))}, "frames": names}
-    save_model(out, ema.cpu(), ucfg, bank_spec(bank), extra, cfg.target)
+    save_model(out, ema.cpu(), ucfg, bank_spec(bank), extra)
     plot_losses(losses, out / "loss.png")
     (out / "frames.txt").write_text("\n".join(names) + "\n")
     return out
