@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from trainer.ddg.data import RealDataError, RealFrame
-from trainer.ddg.paired import PairedConfig, paired, policy_views, wrong_depth
+from trainer.ddg.paired import PairedConfig, hole_agreement, paired, policy_views, wrong_depth
 from trainer.sim.capture import capture
 
 
@@ -26,6 +26,17 @@ def test_wrong_depth_counts_holes_and_errors_in_the_policy_range_only():
     assert s["off_p90_mm"] == pytest.approx(100.0) and s["off_p99_mm"] == pytest.approx(100.0)
     with pytest.raises(ValueError, match="differ in shape"):
         wrong_depth(depth, exact[:, :5])
+
+
+def test_hole_agreement_counts_holes_where_the_sensor_has_them():
+    exact = np.full((1, 10, 10), 1000, np.uint16)
+    exact[0, 9] = 3000  # beyond the policy's range: its holes are not counted
+    sensor, source = exact.copy(), exact.copy()
+    sensor[0, :4], source[0, 2:4], source[0, 5] = 0, 0, 0  # sensor: 40 holes; source: 20 of them + 10 more
+    sensor[0, 9], source[0, 9] = 0, 0
+    assert hole_agreement(source, sensor, exact) == {"sensor_holes_shared_pct": 50.0,
+                                                     "holes_the_sensors_pct": pytest.approx(66.7)}
+    assert hole_agreement(sensor, sensor, exact)["holes_the_sensors_pct"] == 100.0
 
 
 def test_the_sensor_is_judged_against_its_own_scene_and_grafting_keeps_it_exact(tmp_path, tiny_model):

@@ -4,7 +4,8 @@ The realism metrics (``metrics``) compare distributions, and a grafted DDG score
 while its depth is never wrong: grafting keeps the simulator's exact depth wherever no hole is predicted. A
 simulated capture (``python -m trainer.sim.capture``) carries the scene's exact depth beside the sensor's, so
 here each DDG is run on that exact depth and, with the sensor itself, judged pixel by pixel against it, in the
-policy's crop and depth range: the share of it a source loses, and how far off the depth it keeps is.
+policy's crop and depth range: the share of it a source loses, how far off the depth it keeps is, and how
+many of its holes fall where the sensor has its own in the same view.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 
 from runtime.preprocess import DepthSpec, crop_resize
 
+from .baselines import randnoise
 from .data import POLICY_SPEC, RealDataError, RealFrame, load_real_dir
 from .sample import Generator
 
@@ -45,10 +47,22 @@ def wrong_depth(depth_mm: np.ndarray, exact_mm: np.ndarray, spec: DepthSpec = PO
     off = np.abs(depth_mm[kept].astype(np.float32) - exact_mm[kept])
     if not off.size:
         raise ValueError("no pixel both in the policy's depth range and measured")
-    p50, p90, p99 = np.percentile(off, [50, 90, 99])
+    p50, p90, p99 = (float(v) for v in np.percentile(off, [50, 90, 99]))
     return {"holes_pct": round(100 * (1 - kept.sum() / in_range.sum()), 2), "off_median_mm": round(p50, 1),
             "off_p90_mm": round(p90, 1), "off_p99_mm": round(p99, 1),
             "off_over_50mm_pct": round(100 * float(np.mean(off > 50)), 2)}
+
+
+def hole_agreement(depth_mm: np.ndarray, sensor_mm: np.ndarray, exact_mm: np.ndarray,
+                   spec: DepthSpec = POLICY_SPEC) -> dict:
+    """Within the policy's range of the exact depth: the share of the sensor's holes the source has too (%),
+    and the share of the source's holes that are the sensor's (%). By chance both are near the other's hole
+    share; a source that puts holes where the sensor does scores high on both."""
+    in_range = (exact_mm >= spec.near_m * 1000) & (exact_mm <= spec.far_m * 1000)
+    mine, theirs = in_range & (depth_mm == 0), in_range & (sensor_mm == 0)
+    both = float((mine & theirs).sum())
+    return {"sensor_holes_shared_pct": round(100 * both / max(theirs.sum(), 1), 1),
+            "holes_the_sensors_pct": round(100 * both / max(mine.sum(), 1), 1)}
 
 
 def policy_views(frames: list[RealFrame]) -> tuple[np.ndarray, np.ndarray]:
@@ -63,17 +77,20 @@ def policy_views(frames: list[RealFrame]) -> tuple[np.ndarray, np.ndarray]:
 
 def paired(cfg: PairedConfig) -> dict:
     sensor, exact = policy_views(load_real_dir(cfg.real))
-    sources = {"sensor": sensor}
+    rng = np.random.default_rng(0)  # randnoise: holes and noise that know nothing of the sensor, for scale
+    sources = {"sensor": sensor, "randnoise": np.stack([randnoise(e, rng) for e in exact])}
     for model in cfg.model:
         grafted, ungrafted = Generator(model, cfg.steps, threads=cfg.threads)(exact, np.arange(len(exact)))
         sources.update({f"{model} grafted": grafted, f"{model} ungrafted": ungrafted})
-    result = {"frames": len(exact), "sources": {k: wrong_depth(v, exact) for k, v in sources.items()},
-              "config": asdict(cfg)}
+    result = {"frames": len(exact), "config": asdict(cfg),
+              "sources": {k: {**wrong_depth(v, exact), **hole_agreement(v, sensor, exact)}
+                          for k, v in sources.items()}}
     print(f"{len(exact)} frames; policy range {POLICY_SPEC.near_m}-{POLICY_SPEC.far_m} m of the exact depth")
-    print("| source | holes % | off exact, median / p90 / p99 mm | off > 50 mm % |\n|---|---|---|---|")
+    print("| source | holes % | of the sensor's holes, shared % | of its holes, the sensor's % | off exact, "
+          "median / p90 / p99 mm | off > 50 mm % |\n|---|---|---|---|---|---|")
     for name, s in result["sources"].items():
-        print(f"| {name} | {s['holes_pct']} | {s['off_median_mm']} / {s['off_p90_mm']} / {s['off_p99_mm']} | "
-              f"{s['off_over_50mm_pct']} |")
+        print(f"| {name} | {s['holes_pct']} | {s['sensor_holes_shared_pct']} | {s['holes_the_sensors_pct']} "
+              f"| {s['off_median_mm']} / {s['off_p90_mm']} / {s['off_p99_mm']} | {s['off_over_50mm_pct']} |")
     if cfg.json:
         Path(cfg.json).parent.mkdir(parents=True, exist_ok=True)
         Path(cfg.json).write_text(json.dumps(result, indent=1) + "\n")
