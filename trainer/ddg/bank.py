@@ -56,7 +56,7 @@ def fused_frames(frames: list[RealFrame]) -> dict[str, np.ndarray]:
 
 def build_bank(frames: list[RealFrame], cfg: BankConfig = BankConfig()) -> dict[str, np.ndarray]:
     """{"depth_mm": uint16 [N, H, W], "c": float16 [N, H, W], "scale": float32 [N, 2] (lo, span),
-    "frame": int [N], "names": str [F], "far_m": float (the range's far end)}."""
+    "frame": int [N], "names": str [F], "far_m": float (the range's far end), "prior": c's source}."""
     rng = np.random.default_rng(cfg.seed)
     sources = prior_sources(frames, cfg.prior)
     prior = DepthPrior(range_spec(cfg.far_m))
@@ -67,10 +67,10 @@ def build_bank(frames: list[RealFrame], cfg: BankConfig = BankConfig()) -> dict[
             win = (int(rng.integers(0, s.stream_height - s.crop_height + 1)),
                    int(rng.integers(0, s.stream_width - s.crop_width + 1)))
             k = np.exp(rng.uniform(*np.log(cfg.depth_jitter)))
-            raw, fus = (_scaled(crop_resize(d, s, win), k) for d in (f.depth_mm, sources[f.name]))
+            raw, base = (_scaled(crop_resize(d, s, win), k) for d in (f.depth_mm, sources[f.name]))
             if (raw > 0).mean() < 0.2:  # a window that is mostly hole teaches nothing about geometry
                 continue
-            prior_c, scale = prior.with_scale(fus)
+            prior_c, scale = prior.with_scale(base)
             crops.append(raw)
             c.append(prior_c.astype(np.float16))
             scales.append(scale)

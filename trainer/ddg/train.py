@@ -180,8 +180,8 @@ def _bank(cfg: FitConfig, run: Path) -> tuple[dict[str, np.ndarray], list[str]]:
         bank = concat_banks([load_bank(Path(b)) for b in cfg.bank])
     else:
         far = "" if cfg.far_m == POLICY_SPEC.far_m else f"_far{cfg.far_m:g}"
-        exact = "" if cfg.prior == "fused" else f"_{cfg.prior}"
-        cached = run / f"bank_{cfg.sensors}_{cfg.crops}_{cfg.seed}{far}{exact}.npz"
+        prior = "" if cfg.prior == "fused" else f"_{cfg.prior}"
+        cached = run / f"bank_{cfg.sensors}_{cfg.crops}_{cfg.seed}{far}{prior}.npz"
         if cached.exists():
             bank = load_bank(cached)
         else:
