@@ -37,12 +37,17 @@ class PairedConfig:
     """Also write the results to this JSON file."""
 
 
+def policy_range(exact_mm: np.ndarray, spec: DepthSpec) -> np.ndarray:
+    """The pixels judged: those whose exact depth lies in the policy's range."""
+    return (exact_mm >= spec.near_m * 1000) & (exact_mm <= spec.far_m * 1000)
+
+
 def wrong_depth(depth_mm: np.ndarray, exact_mm: np.ndarray, spec: DepthSpec = POLICY_SPEC) -> dict:
     """Frames [N, H, W] against the exact depth of the same views, over the pixels whose exact depth lies in
     the policy's range: the share without data (%), and how far off the rest is (mm, and % over 50 mm)."""
     if depth_mm.shape != exact_mm.shape:
         raise ValueError(f"frames {depth_mm.shape} and exact depth {exact_mm.shape} differ in shape")
-    in_range = (exact_mm >= spec.near_m * 1000) & (exact_mm <= spec.far_m * 1000)
+    in_range = policy_range(exact_mm, spec)
     kept = in_range & (depth_mm > 0)
     off = np.abs(depth_mm[kept].astype(np.float32) - exact_mm[kept])
     if not off.size:
@@ -58,7 +63,7 @@ def hole_agreement(depth_mm: np.ndarray, sensor_mm: np.ndarray, exact_mm: np.nda
     """Within the policy's range of the exact depth: the share of the sensor's holes the source has too (%),
     and the share of the source's holes that are the sensor's (%). By chance both are near the other's hole
     share; a source that puts holes where the sensor does scores high on both."""
-    in_range = (exact_mm >= spec.near_m * 1000) & (exact_mm <= spec.far_m * 1000)
+    in_range = policy_range(exact_mm, spec)
     mine, theirs = in_range & (depth_mm == 0), in_range & (sensor_mm == 0)
     both = float((mine & theirs).sum())
     return {"sensor_holes_shared_pct": round(100 * both / max(theirs.sum(), 1), 1),
