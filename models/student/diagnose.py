@@ -205,23 +205,26 @@ def sensor_parts(seen: np.ndarray, clean: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def parts(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None:
+    from trainer.ddg.paired import wrong_depth
     from trainer.sim.sensors import make_sensor
 
     head, sensor = ObjectEstimate(ckpt_path), make_sensor(sensor_spec)
-    env, tracker = GraspEnv(EnvConfig(objects=KINDS)), Tracker(make_policy(policy), frames=True)
-    spec = head.ckpt.info.depth_spec  # the policy's range: normalise clips the rest
-    errors, wrong_mm = {}, []
+    env, tracker = GraspEnv(EnvConfig(objects=KINDS)), Tracker(make_policy(policy))
+    errors, seen_all, clean_all = {}, [], []
     for job in jobs(episodes):
         run = run_episode(env, tracker, job, sensor=sensor, record=True)
-        seen, clean = np.stack(tracker.frames), np.stack(run.frames["depth"][: len(tracker.frames)])
+        until_close = len(tracker.objects)  # the recording holds the frames the sensor showed the policy
+        seen, clean = (np.stack(run.frames[key][:until_close]) for key in ("depth_sensor", "depth"))
         for name, frames in sensor_parts(seen, clean).items():
             errors.setdefault(name, []).extend(head.errors_cm(list(frames), tracker.objects))
-        both = (seen > 0) & (clean >= spec.near_m * 1000) & (clean <= spec.far_m * 1000)
-        wrong_mm.extend(np.abs(seen[both].astype(np.float32) - clean[both]))
+        seen_all.append(seen)
+        clean_all.append(clean)
     for name, errs in errors.items():
         print(f"{name}: {summary(errs)}")
-    print(f"the sensor's depth in the policy's range, off clean depth by median {np.median(wrong_mm):.0f} mm "
-          f"(p90 {np.percentile(wrong_mm, 90):.0f}, p99 {np.percentile(wrong_mm, 99):.0f})")
+    # judged in the policy's range: normalise clips the rest
+    off = wrong_depth(np.concatenate(seen_all), np.concatenate(clean_all), head.ckpt.info.depth_spec)
+    print(f"the sensor's depth in the policy's range, off clean depth by median {off['off_median_mm']:.0f} "
+          f"mm (p90 {off['off_p90_mm']:.0f}, p99 {off['off_p99_mm']:.0f})")
 
 
 def main() -> None:
