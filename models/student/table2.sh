@@ -28,6 +28,8 @@
 #   models/student/table2.sh sensor [N] the ceiling of any generator of the stereo sensor: `ddgb6k`'s fine-tunes
 #                                       on the sensor's own frames of the first N (default 1000) of the same demos,
 #                                       its object estimate on the sensor's frames and key cells
+#   models/student/table2.sh best       Table II at the best recipe: `ddgb6k`'s fine-tunes on randnoise and on
+#                                       DDG (b) without grafting, and the key cells of every source from that start
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -72,7 +74,12 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "ddgb6k_hpos_8k_x4 runs/student/ddgb6k_hpos_8k_x4.onnx none"
           "ddgb6k_hpos_more_12k_x4 runs/student/ddgb6k_hpos_more_12k_x4.onnx none"
           "ddgb4k_hpos_more_12k_x4 runs/student/ddgb4k_hpos_more_12k_x4.onnx none"  # `ddgb4k`
-          "sensor_hpos_more_12k_x4 runs/student/sensor_hpos_more_12k_x4.onnx none")  # `sensor`
+          "sensor_hpos_more_12k_x4 runs/student/sensor_hpos_more_12k_x4.onnx none"  # `sensor`
+          # `best`: Table II at the best recipe, every source fine-tuned from the same GT start as `ddgb6k`
+          "gt6k_hpos_more_12k_x4 runs/student/gt6k_hpos_more_12k_x4.onnx none"
+          "gt6k_inpaint_x4 runs/student/gt6k_hpos_more_12k_x4.onnx inpaint"
+          "randnoise6k_hpos_more_12k_x4 runs/student/randnoise6k_hpos_more_12k_x4.onnx none"
+          "nograftb6k_hpos_more_12k_x4 runs/student/nograftb6k_hpos_more_12k_x4.onnx none")
 
 cell() {  # name model restore sensor objects episodes [folder]
     local json=${7:-runs/table2}/$1_$4_$5_$6.json
@@ -399,4 +406,20 @@ sensor() {  # [N]
     key "${name}_x4"
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor [NAME...]}"
+best() {
+    # the Table II analogue at the best recipe: `ddgb6k`'s two fine-tunes (same start gt6k_hpos_more_12k, 8000 +
+    # 12000 steps, lr 1e-4, the same 1000 demos) on randnoise and on DDG (b) without grafting, one thread each side
+    # by side; then the key cells of those, of their GT start (itself and with deploy-time inpainting)
+    local recipe="--hand-pose --object-offset --hand-target --seen-offset" run
+    for run in "randnoise6k runs/sim/demos_seen.zarr randnoise" "nograftb6k runs/sim/demos_seen_ddg_b.zarr ddg_nograft"; do
+        set -- $run
+        (finetune "$1_hpos_8k" "$2" "$3" 1 $recipe --init runs/student/gt6k_hpos_more_12k/ckpt.pt &&
+         finetune "$1_hpos_more_12k" "$2" "$3" 1 $recipe --steps 12000 --init "runs/student/$1_hpos_8k/ckpt.pt" &&
+         python -m export "runs/student/$1_hpos_more_12k/ckpt.pt" --ddim-steps 4 --exec-horizon 4 \
+             --out "runs/student/$1_hpos_more_12k_x4.onnx") > "runs/student/$1_hpos.log" 2>&1 &
+    done
+    wait
+    key gt6k_hpos_more_12k_x4 randnoise6k_hpos_more_12k_x4 nograftb6k_hpos_more_12k_x4 gt6k_inpaint_x4
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best [NAME...]}"
