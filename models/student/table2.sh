@@ -377,14 +377,23 @@ ddgb6k_all() {  # next: DDG (b)'s depth of all 6000 demos (~2.7 h on 2 cores), f
     ddg_b_depth runs/sim/demos_seen_6k.zarr runs/sim/demos_seen_6k_ddg_b.zarr
 }
 
+fine_tunes() {  # prefix demos source threads [fit options...]: `ddgb6k`'s recipe, 8000 steps from the best GT
+    # student (gt6k_hpos_more_12k), then 12000 more, then the exec-4 export runs/student/PREFIX_hpos_more_12k_x4.onnx
+    local prefix=$1 demos=$2 source=$3 threads=$4 recipe="--hand-pose --object-offset --hand-target --seen-offset"
+    shift 4
+    finetune "${prefix}_hpos_8k" "$demos" "$source" "$threads" $recipe "$@" \
+        --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    finetune "${prefix}_hpos_more_12k" "$demos" "$source" "$threads" $recipe "$@" --steps 12000 \
+        --init "runs/student/${prefix}_hpos_8k/ckpt.pt"
+    python -m export "runs/student/${prefix}_hpos_more_12k/ckpt.pt" --ddim-steps 4 --exec-horizon 4 \
+        --out "runs/student/${prefix}_hpos_more_12k_x4.onnx"
+}
+
 ddgb4k() {
     # `ddgb6k` with 4x the data: the same start, steps and lr on DDG (b) depth of the first 4000 demos of the 6000
     # (`ddgb6k_all` stopped once it had reached them; `--episodes` refuses frames not generated yet)
-    local demos=runs/sim/demos_seen_6k_ddg_b.zarr name=ddgb4k_hpos_more_12k
-    local recipe="--hand-pose --object-offset --hand-target --seen-offset --episodes 4000"
-    finetune ddgb4k_hpos_8k $demos ddg 2 $recipe --init runs/student/gt6k_hpos_more_12k/ckpt.pt
-    finetune $name $demos ddg 2 $recipe --steps 12000 --init runs/student/ddgb4k_hpos_8k/ckpt.pt
-    python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
+    local name=ddgb4k_hpos_more_12k
+    fine_tunes ddgb4k runs/sim/demos_seen_6k_ddg_b.zarr ddg 2 --episodes 4000
     python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --depth-source ddg \
         --demos runs/student/heldout_60_ddg_b.zarr --checkpoint "runs/student/$name/ckpt.pt"
     key "${name}_x4"
@@ -396,11 +405,8 @@ sensor() {  # [N]
     # and keeps both depths), a student no generator of this sensor can beat; not a baseline (it trains on the
     # evaluation's sensor), the ceiling of the DDG (b) route
     local n=${1:-1000} demos=runs/sim/demos_seen_stereo.zarr name=sensor_hpos_more_12k
-    local recipe="--hand-pose --object-offset --hand-target --seen-offset --episodes $n"
     python -m trainer collect --episodes "$n" --seed 0 --sensor stereo --workers 2 --out $demos
-    finetune sensor_hpos_8k $demos sensor 2 $recipe --init runs/student/gt6k_hpos_more_12k/ckpt.pt
-    finetune $name $demos sensor 2 $recipe --steps 12000 --init runs/student/sensor_hpos_8k/ckpt.pt
-    python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
+    fine_tunes sensor $demos sensor 2 --episodes "$n"
     python models/student/diagnose.py locate scripted --checkpoint "runs/student/$name/ckpt.pt" --episodes 30 \
         --sensor stereo
     key "${name}_x4"
@@ -410,13 +416,10 @@ best() {
     # the Table II analogue at the best recipe: `ddgb6k`'s two fine-tunes (same start gt6k_hpos_more_12k, 8000 +
     # 12000 steps, lr 1e-4, the same 1000 demos) on randnoise and on DDG (b) without grafting, one thread each side
     # by side; then the key cells of those, of their GT start (itself and with deploy-time inpainting)
-    local recipe="--hand-pose --object-offset --hand-target --seen-offset" run
+    local run
     for run in "randnoise6k runs/sim/demos_seen.zarr randnoise" "nograftb6k runs/sim/demos_seen_ddg_b.zarr ddg_nograft"; do
         set -- $run
-        (finetune "$1_hpos_8k" "$2" "$3" 1 $recipe --init runs/student/gt6k_hpos_more_12k/ckpt.pt &&
-         finetune "$1_hpos_more_12k" "$2" "$3" 1 $recipe --steps 12000 --init "runs/student/$1_hpos_8k/ckpt.pt" &&
-         python -m export "runs/student/$1_hpos_more_12k/ckpt.pt" --ddim-steps 4 --exec-horizon 4 \
-             --out "runs/student/$1_hpos_more_12k_x4.onnx") > "runs/student/$1_hpos.log" 2>&1 &
+        fine_tunes "$1" "$2" "$3" 1 > "runs/student/$1_hpos.log" 2>&1 &
     done
     wait
     key gt6k_hpos_more_12k_x4 randnoise6k_hpos_more_12k_x4 nograftb6k_hpos_more_12k_x4 gt6k_inpaint_x4
