@@ -30,6 +30,9 @@
 #                                       its object estimate on the sensor's frames and key cells
 #   models/student/table2.sh best       Table II at the best recipe: `ddgb6k`'s fine-tunes on randnoise and on
 #                                       DDG (b) without grafting, and the key cells of every source from that start
+#   models/student/table2.sh ddga6k     `ddgb6k`'s fine-tunes on DDG (a)'s depth (models/ddg, the real captures) of
+#                                       the same 1000 demos, its held-out object estimate and key cells
+#   models/student/table2.sh nografta6k the same on DDG (a)'s depth without grafting, and its key cells
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -64,7 +67,7 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "ddg runs/student/ddg2_ft_8k.onnx none"
           "randnoise runs/student/randnoise_ft_8k.onnx none"
           "ddg_nograft runs/student/ddg_nograft_ft_8k.onnx none"
-          "shipped runs/student/ddg2_ft_20k.onnx none"  # models/student.onnx: the ddg student at 20000 steps
+          "ddg2_ft_20k runs/student/ddg2_ft_20k.onnx none"  # the ddg student at 20000 steps (shipped until 2026-11-25)
           "gt_hand runs/student/gt_hand_more_8k.onnx none"  # `dagger` step 3, without the recovery demos
           "ddg_hand runs/student/ddg_hand_8k.onnx none"  # `dagger` step 4
           "ddg_b runs/student/ddg_b_ft_8k.onnx none"  # `ddg_b`: DDG (b), trained on the stereo sensor's frames
@@ -79,7 +82,9 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "gt6k_hpos_more_12k_x4 runs/student/gt6k_hpos_more_12k_x4.onnx none"
           "gt6k_inpaint_x4 runs/student/gt6k_hpos_more_12k_x4.onnx inpaint"
           "randnoise6k_hpos_more_12k_x4 runs/student/randnoise6k_hpos_more_12k_x4.onnx none"
-          "nograftb6k_hpos_more_12k_x4 runs/student/nograftb6k_hpos_more_12k_x4.onnx none")
+          "nograftb6k_hpos_more_12k_x4 runs/student/nograftb6k_hpos_more_12k_x4.onnx none"
+          "ddga6k_hpos_more_12k_x4 runs/student/ddga6k_hpos_more_12k_x4.onnx none"  # `ddga6k`
+          "nografta6k_hpos_more_12k_x4 runs/student/nografta6k_hpos_more_12k_x4.onnx none")  # `nografta6k`
 
 cell() {  # name model restore sensor objects episodes [folder]
     local json=${7:-runs/table2}/$1_$4_$5_$6.json
@@ -150,7 +155,7 @@ ddg_b() {
     # The same demos (a copy: a store holds one DDG's depth) through DDG (b) at DDIM 5, as train.sh step 3 did
     # with DDG (a) (first run: one 1-core process beside train.sh step 2; frames are seeded by index, so the
     # two shards give the same depth)
-    ddg_b_depth runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
+    ddg_depth models/ddg_stereo runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
     python -m trainer student fit --demos runs/sim/demos_seen_ddg_b.zarr --depth-source ddg \
         --out runs/student/ddg_b_ft_8k --init runs/student/gt_1000_obj1/ckpt.pt --object-loss 1 --steps 8000 \
         --batch 32 --lr 1e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 1 --ckpt-every 1000
@@ -326,6 +331,7 @@ table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order o
 sixk() {
     # docs/student.md "6000 demos": moredata's --seen-offset student on twice the demos, the same 36000 steps; one
     # run on 2 threads (6000 demos' depth is 12 GB in memory, two runs at once would not fit in 24 GB)
+    demos_3k
     grow_demos runs/sim/demos_seen_3k.zarr runs/sim/demos_seen_6k.zarr 6000
     fit gt6k_hpos_36k runs/sim/demos_seen_6k.zarr gt 2 36000 --lr 3e-4 --hand-pose --object-offset --seen-offset
     measure gt6k_hpos_36k runs/sim/demos_seen_6k.zarr
@@ -335,11 +341,11 @@ sixk() {
     measure gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr
 }
 
-ddg_b_depth() {  # from to: a copy of a demo store with DDG (b)'s depth (DDIM 5) in two 1-core shards; resumable
-    [ -d "$2" ] || cp -r "$1" "$2"
+ddg_depth() {  # model from to: a copy of a demo store with that DDG's depth (DDIM 5) in two 1-core shards; resumable
+    [ -d "$3" ] || cp -r "$2" "$3"
     local pids=() shard
     for shard in 0/2 1/2; do
-        python -m trainer ddg generate --demos "$2" --model models/ddg_stereo --steps 5 --threads 1 --batch 16 \
+        python -m trainer ddg generate --demos "$3" --model "$1" --steps 5 --threads 1 --batch 16 \
             --shard "$shard" &
         pids+=($!)
     done
@@ -350,7 +356,7 @@ ddgb6k() {
     # the paper's point with the best recipe: the best GT student (6000 demos, hand pose, seen offset, 48000
     # steps) fine-tuned 8000 steps (lr 1e-4) on DDG (b)'s depth of the first 1000 of its demos (DDIM 5: 27 min on
     # 2 cores; all 6000 would take ~2.7 h), then its measures and its stereo cells beside the GT student's
-    ddg_b_depth runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
+    ddg_depth models/ddg_stereo runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
     finetune ddgb6k_hpos_8k runs/sim/demos_seen_ddg_b.zarr ddg 2 --hand-pose --object-offset --hand-target \
         --seen-offset --init runs/student/gt6k_hpos_more_12k/ckpt.pt
     measure ddgb6k_hpos_8k runs/sim/demos_seen_ddg_b.zarr
@@ -363,7 +369,7 @@ ddgb6k() {
 }
 
 ddgb_heldout() {  # the DDG (b) students' object estimate on DDG (b) depth of the 60 held-out demos (and their training demos)
-    ddg_b_depth runs/student/heldout_60.zarr runs/student/heldout_60_ddg_b.zarr
+    ddg_depth models/ddg_stereo runs/student/heldout_60.zarr runs/student/heldout_60_ddg_b.zarr
     local name demos
     for name in ddgb6k_hpos_8k ddgb6k_hpos_more_12k; do
         for demos in runs/student/heldout_60_ddg_b.zarr runs/sim/demos_seen_ddg_b.zarr; do
@@ -374,7 +380,7 @@ ddgb_heldout() {  # the DDG (b) students' object estimate on DDG (b) depth of th
 }
 
 ddgb6k_all() {  # next: DDG (b)'s depth of all 6000 demos (~2.7 h on 2 cores), for a fine-tune on all of them
-    ddg_b_depth runs/sim/demos_seen_6k.zarr runs/sim/demos_seen_6k_ddg_b.zarr
+    ddg_depth models/ddg_stereo runs/sim/demos_seen_6k.zarr runs/sim/demos_seen_6k_ddg_b.zarr
 }
 
 fine_tunes() {  # prefix demos source threads [fit options...]: `ddgb6k`'s recipe, 8000 steps from the best GT
@@ -425,4 +431,21 @@ best() {
     key gt6k_hpos_more_12k_x4 randnoise6k_hpos_more_12k_x4 nograftb6k_hpos_more_12k_x4 gt6k_inpaint_x4
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best [NAME...]}"
+ddga6k() {
+    # DDG (a), the generator trained on the real captures (models/ddg), at the best recipe: its depth of the same
+    # 1000 demos, `ddgb6k`'s two fine-tunes on it, the object estimate on its depth of the 60 held-out demos, key cells
+    local name=ddga6k_hpos_more_12k
+    ddg_depth models/ddg runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_a.zarr
+    fine_tunes ddga6k runs/sim/demos_seen_ddg_a.zarr ddg 2
+    ddg_depth models/ddg runs/student/heldout_60.zarr runs/student/heldout_60_ddg_a.zarr
+    python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --depth-source ddg \
+        --demos runs/student/heldout_60_ddg_a.zarr --checkpoint "runs/student/$name/ckpt.pt"
+    key "${name}_x4"
+}
+
+nografta6k() {  # `ddga6k`'s fine-tunes on the same store's DDG (a) depth without grafting, and their key cells
+    fine_tunes nografta6k runs/sim/demos_seen_ddg_a.zarr ddg_nograft 2
+    key nografta6k_hpos_more_12k_x4
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k [NAME...]}"

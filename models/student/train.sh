@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The recorded commands that produced models/student.onnx (the DDG student: step 2's GT student fine-tuned on
-# DDG depth in step 4) and the runs measured beside it: the GT student (step 2) and a control without the object loss.
+# The recorded commands that produced models/student.onnx (step 6: the best recipe's GT student fine-tuned on
+# DDG depth) and the first recipe before it (steps 2-5: the GT student that models/student/table2.sh starts
+# from, the first DDG student, a control without the object loss).
 # Run from the repository root; everything lands in runs/ (git-ignored) except the shipped files.
 set -euo pipefail
 export OMP_NUM_THREADS=1
@@ -26,9 +27,15 @@ for run in "8000 2" "20000 1"; do
         --width 16 --head-dims 32 64 128 --threads "$2" --ckpt-every 1000
 done
 python -m export runs/student/ddg2_ft_20k/ckpt.pt --ddim-steps 4 --out runs/student/ddg2_ft_20k.onnx
-cp runs/student/ddg2_ft_20k.onnx models/student.onnx
 # 5. Control: the same data and the same first 16000 steps on GT depth without the object loss.
 python -m trainer student fit --demos runs/sim/demos_seen.zarr --depth-source gt --out runs/student/gt_1000_obj0 \
     --object-loss 0 --steps 16000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 \
     --threads 1 --ckpt-every 1000
 python -m export runs/student/gt_1000_obj0/ckpt.pt --ddim-steps 4 --out runs/student/gt_1000_obj0.onnx
+# 6. The shipped student, the best recipe (docs/student.md from "The oracle" on): the demos grown to 6000, a GT
+#    student given the hand's pose and the object's offset from it, 36000 + 12000 steps (`sixk`); then 8000 +
+#    12000 steps from it on the shipped DDG's depth of the first 1000 demos (DDIM 5), executing 4 of each
+#    chunk, and its measures (`ddga6k`).
+models/student/table2.sh sixk
+models/student/table2.sh ddga6k
+cp runs/student/ddga6k_hpos_more_12k_x4.onnx models/student.onnx
