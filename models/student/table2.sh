@@ -277,16 +277,21 @@ handpose() {
     done
 }
 
+probe() {  # name demos [probe options...]: the object estimate of a run (its exec-4 ONNX and checkpoint) on a store
+    local name=$1 demos=$2
+    shift 2
+    python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos "$demos" \
+        --checkpoint "runs/student/$name/ckpt.pt" "$@"
+}
+
 measure() {  # name training-demos: a hand-pose student's exec-4 ONNX, its object estimate on 60 held-out demos, on
     # its training demos and on its own episodes (by distance to the object), and its clean cells at 180 episodes
     local name=$1
     [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
         --workers 2 --out runs/student/heldout_60.zarr
     python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
-    python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos runs/student/heldout_60.zarr \
-        --checkpoint "runs/student/$name/ckpt.pt"
-    python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos "$2" \
-        --checkpoint "runs/student/$name/ckpt.pt"
+    probe "$name" runs/student/heldout_60.zarr
+    probe "$name" "$2"
     python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
         --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
     for objects in seen unseen; do
@@ -373,8 +378,7 @@ ddgb_heldout() {  # the DDG (b) students' object estimate on DDG (b) depth of th
     local name demos
     for name in ddgb6k_hpos_8k ddgb6k_hpos_more_12k; do
         for demos in runs/student/heldout_60_ddg_b.zarr runs/sim/demos_seen_ddg_b.zarr; do
-            python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --demos "$demos" \
-                --depth-source ddg --checkpoint "runs/student/$name/ckpt.pt"
+            probe "$name" "$demos" --depth-source ddg
         done
     done
 }
@@ -400,8 +404,7 @@ ddgb4k() {
     # (`ddgb6k_all` stopped once it had reached them; `--episodes` refuses frames not generated yet)
     local name=ddgb4k_hpos_more_12k
     fine_tunes ddgb4k runs/sim/demos_seen_6k_ddg_b.zarr ddg 2 --episodes 4000
-    python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --depth-source ddg \
-        --demos runs/student/heldout_60_ddg_b.zarr --checkpoint "runs/student/$name/ckpt.pt"
+    probe "$name" runs/student/heldout_60_ddg_b.zarr --depth-source ddg
     key "${name}_x4"
 }
 
@@ -438,8 +441,7 @@ ddga6k() {
     ddg_depth models/ddg runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_a.zarr
     fine_tunes ddga6k runs/sim/demos_seen_ddg_a.zarr ddg 2
     ddg_depth models/ddg runs/student/heldout_60.zarr runs/student/heldout_60_ddg_a.zarr
-    python -m trainer student probe --policy "runs/student/${name}_x4.onnx" --depth-source ddg \
-        --demos runs/student/heldout_60_ddg_a.zarr --checkpoint "runs/student/$name/ckpt.pt"
+    probe "$name" runs/student/heldout_60_ddg_a.zarr --depth-source ddg
     key "${name}_x4"
 }
 
