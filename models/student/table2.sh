@@ -346,11 +346,13 @@ sixk() {
     measure gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr
 }
 
-ddg_depth() {  # model from to: a copy of a demo store with that DDG's depth (DDIM 5) in two 1-core shards; resumable
+ddg_depth() {  # model from to: a copy of a demo store with that DDG's depth (DDIM 5) in two 1-core shards; resumable.
+    # --replace: the copy drops DDG depth it came with from another generator (train.sh step 3 leaves models/ddg's
+    # in demos_seen.zarr), rather than refusing it
     [ -d "$3" ] || cp -r "$2" "$3"
     local pids=() shard
     for shard in 0/2 1/2; do
-        python -m trainer ddg generate --demos "$3" --model "$1" --steps 5 --threads 1 --batch 16 \
+        python -m trainer ddg generate --demos "$3" --model "$1" --steps 5 --threads 1 --batch 16 --replace \
             --shard "$shard" &
         pids+=($!)
     done

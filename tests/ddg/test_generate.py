@@ -11,7 +11,8 @@ from trainer.student.data import DemoDataError, DemoDataset
 
 
 def _run(store, model, **kw):
-    return generate(GenerateConfig(demos=str(store), model=str(model), steps=2, batch=4, chunk=8, **kw))
+    return generate(GenerateConfig(**{"demos": str(store), "model": str(model), "steps": 2, "batch": 4, "chunk": 8,
+                                      **kw}))
 
 
 def test_generate_adds_both_arrays_with_grafted_geometry(tiny_demos, tiny_model):
@@ -90,6 +91,21 @@ def test_resume_with_other_settings_is_refused(tiny_demos, tiny_model):
     for other in ({"steps": 5}, {"steps": 2, "eta": 1.0}):
         with pytest.raises(DemoStoreError, match="already holds DDG depth"):
             generate(GenerateConfig(demos=str(tiny_demos), model=str(tiny_model), chunk=8, **other))
+
+
+def test_replace_drops_other_settings_depth_and_matches_a_fresh_run(tiny_demos, tiny_model, tmp_path):
+    """A copy of a store that already holds one generator's depth gets another's with --replace: every chunk
+    made again, nothing of the old depth left, the same result as a store that never held any."""
+    fresh = tmp_path / "fresh.zarr"
+    shutil.copytree(tiny_demos, fresh)
+    _run(tiny_demos, tiny_model, steps=1)
+    _run(tiny_demos, tiny_model, shard="0/2", replace=True)  # a shard may stop half way and resume
+    assert zarr.open_group(str(tiny_demos), mode="r").attrs["ddg"]["steps"] == 2
+    assert _run(tiny_demos, tiny_model, replace=True)["frames"] == 8  # same settings now: resumes, keeps its work
+    _run(fresh, tiny_model)
+    a, b = zarr.open_group(str(tiny_demos), mode="r"), zarr.open_group(str(fresh), mode="r")
+    for name in ("data/depth_ddg", "data/depth_ddg_nograft", "meta/ddg_done"):
+        np.testing.assert_array_equal(np.asarray(a[name]), np.asarray(b[name]))
 
 
 def test_bad_stores_and_shards(tmp_path, tiny_model):

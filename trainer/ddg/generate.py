@@ -53,6 +53,9 @@ class GenerateConfig:
     """CPU cores for onnxruntime."""
     mode: str = "split"
     """How a batch is spread over the cores: split | intra | intra_spin (see ``sample.SESSION_MODES``)."""
+    replace: bool = False
+    """Drop DDG depth that the store holds from other settings (another model, steps, seed or chunk) and start
+    over, instead of refusing: for a copy of a store made to hold another generator's depth."""
 
     def shard_pair(self) -> tuple[int, int]:
         try:
@@ -141,8 +144,13 @@ def _outputs(root: zarr.Group, cfg: GenerateConfig, shape: tuple[int, ...]):
                 "chunk": cfg.chunk, **({"eta": cfg.eta} if cfg.eta else {})}  # stores made before eta resume
     previous = root.attrs.get("ddg")
     if previous is not None and previous != settings:
-        raise DemoStoreError(f"store already holds DDG depth made with {previous}, not {settings}; "
-                             "delete data/depth_ddg* and meta/ddg_done to regenerate")
+        if not cfg.replace:
+            raise DemoStoreError(f"store already holds DDG depth made with {previous}, not {settings}; "
+                                 "pass --replace to drop it and regenerate")
+        for name in ("data/depth_ddg", "data/depth_ddg_nograft", "meta/ddg_done"):
+            if name in root:
+                del root[name]
+        previous = None
     if previous is None:
         root.attrs["ddg"] = settings
     n_chunks = -(-shape[0] // cfg.chunk)
