@@ -11,8 +11,8 @@ from trainer.student.data import DemoDataError, DemoDataset
 
 
 def _run(store, model, **kw):
-    return generate(GenerateConfig(**{"demos": str(store), "model": str(model), "steps": 2, "batch": 4, "chunk": 8,
-                                      **kw}))
+    settings = {"demos": str(store), "model": str(model), "steps": 2, "batch": 4, "chunk": 8}
+    return generate(GenerateConfig(**{**settings, **kw}))
 
 
 def test_generate_adds_both_arrays_with_grafted_geometry(tiny_demos, tiny_model):
@@ -101,7 +101,7 @@ def test_replace_drops_other_settings_depth_and_matches_a_fresh_run(tiny_demos, 
     _run(tiny_demos, tiny_model, steps=1)
     _run(tiny_demos, tiny_model, shard="0/2", replace=True)  # a shard may stop half way and resume
     assert zarr.open_group(str(tiny_demos), mode="r").attrs["ddg"]["steps"] == 2
-    assert _run(tiny_demos, tiny_model, replace=True)["frames"] == 8  # same settings now: resumes, keeps its work
+    assert _run(tiny_demos, tiny_model, replace=True)["frames"] == 8  # same settings now: resumes
     _run(fresh, tiny_model)
     a, b = zarr.open_group(str(tiny_demos), mode="r"), zarr.open_group(str(fresh), mode="r")
     for name in ("data/depth_ddg", "data/depth_ddg_nograft", "meta/ddg_done"):
