@@ -64,7 +64,8 @@ def write_synthetic_demos(path: Path, episodes: int = 2, steps: int = 12, seed: 
         state[:, 7] = np.where(action[:, 7] > 0, 0.0, 0.08)
         store.append(EpisodeRecord(depth=depth, state=state, action=action, kind="box", seed=ep,
                                    crop_window=spec.centred_window(), camera_K=np.eye(3),
-                                   camera_extrinsics=np.eye(4), randomisation={"object_xy": [col / w, 0.0]}))
+                                   camera_extrinsics=np.eye(4), randomisation={"object_xy": [col / w, 0.0],
+                                                                  "object_yaw": 0.7 * ep - 0.4}))
     return path
 
 

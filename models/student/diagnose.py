@@ -8,6 +8,7 @@
     python models/student/diagnose.py locate student:S.onnx --checkpoint ckpt.pt   # its object estimate
                                                           [--sensor stereo]    # on what the sensor shows
     python models/student/diagnose.py parts scripted --checkpoint ckpt.pt --sensor stereo   # holes or values?
+    python models/student/diagnose.py turn student:S.onnx --episodes 40     # the wrist's turn at the close
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
 look like; ``spread`` regresses a policy's closing offset (object minus grasp site when it first closes the
@@ -17,7 +18,10 @@ at what height, and how far it was when it closed. ``locate`` runs a student's t
 (from ``--checkpoint``) on the frames of a policy's episodes (the student's own, or the expert's), binned by
 the hand's height above the object until the close: whether its idea of where the object is degrades as the
 hand comes near. ``parts`` splits what a sensor does to that estimate: its frames, its holes on clean depth,
-its depth with the holes filled from clean depth, and clean depth, over the same steps.
+its depth with the holes filled from clean depth, and clean depth, over the same steps. ``turn`` runs the
+elongated seen kinds (banana, block: the same seeds as ``trainer evaluate``'s) and says, for the grasps that
+succeed and those that fail, how far the fingers' closing axis is turned from the expert's grasp direction at
+the first close (degrees, modulo 180) and how far the object is from the grasp site then.
 """
 
 from __future__ import annotations
@@ -25,11 +29,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
 from hil_sim.objects import GROUPS
 from trainer.policies import make_policy
-from trainer.sim.env import OBJECT_FROM_HAND, OBJECT_POSITION, EnvConfig, GraspEnv
+from trainer.sim.env import HAND_QUAT, OBJECT_FROM_HAND, OBJECT_POSITION, OBJECT_QUAT, EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, rollouts, run_episode
 from trainer.teacher.scripted import ScriptedExpert
 
@@ -147,6 +152,50 @@ def descent(policy: str, episodes: int) -> None:
           f"{np.median(nearest_arr[:, 1]):.1f} cm above; at the close {np.median(at_close):.2f} cm aside")
 
 
+ELONGATED = ("banana", "block")
+"""turn: the seen kinds whose grasp direction matters (the others are round or square in plan view)."""
+
+
+class TurnTracker(Tracker):
+    """A Tracker that also records, until the close, how far the fingers' closing axis is turned from the
+    scripted expert's grasp direction on the object as it lies (degrees, modulo 180)."""
+
+    def __init__(self, inner) -> None:
+        super().__init__(inner)
+        self.expert, self.turns = ScriptedExpert(), []
+
+    def reset(self, env_info: dict) -> None:
+        super().reset(env_info)
+        self.expert.reset(env_info)
+        self.turns = []
+
+    def act(self, obs) -> np.ndarray:
+        if not self.closed:
+            rot = np.zeros(9)
+            mujoco.mju_quat2Mat(rot, obs.privileged[HAND_QUAT])
+            rot = rot.reshape(3, 3)
+            fingers = np.arctan2(rot[1, 1], rot[0, 1])
+            off = self.expert._grasp_yaw(obs.privileged[OBJECT_QUAT], rot) - fingers
+            self.turns.append(abs(np.degrees((off + np.pi / 2) % np.pi - np.pi / 2)))
+        return super().act(obs)
+
+
+def turn(policy: str, episodes: int) -> None:
+    env, tracker = GraspEnv(EnvConfig(objects=KINDS)), TurnTracker(make_policy(policy))
+    rows = {True: [], False: []}
+    for job in [j for j in jobs(3 * episodes) if j.kind in ELONGATED][:episodes]:
+        won = run_episode(env, tracker, job).success
+        turned, aside = tracker.turns[-1], np.linalg.norm(tracker.offsets[-1][:2])
+        rows[won].append((turned, aside))
+        print(f"seed {job.seed} {job.kind:7s} success {int(won)}: fingers {turned:.0f} deg from the expert's "
+              f"direction, {aside:.2f} cm aside at the close", flush=True)
+    for won, name in ((True, "succeeded"), (False, "failed")):
+        if rows[won]:
+            turns, aside = np.array(rows[won]).T
+            print(f"{len(turns)} {name}: fingers off by median {np.median(turns):.0f} deg (p90 "
+                  f"{np.percentile(turns, 90):.0f}), {np.median(aside):.2f} cm aside")
+
+
 class ObjectEstimate:
     """A student checkpoint's training-only object head, read in metres over an episode's frames."""
 
@@ -229,9 +278,9 @@ def parts(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", choices=["tolerance", "spread", "dart", "descent", "locate", "parts"])
+    p.add_argument("what", choices=["tolerance", "spread", "dart", "descent", "locate", "parts", "turn"])
     p.add_argument("policy", nargs="?", default="scripted",
-                   help="a trainer policy spec (spread, descent, locate, parts)")
+                   help="a trainer policy spec (spread, descent, locate, parts, turn)")
     p.add_argument("--checkpoint", help="locate, parts: the student checkpoint whose object head is measured")
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--sensor", default="clean",
@@ -246,6 +295,8 @@ def main() -> None:
         dart(args.episodes, args.sigma)
     elif args.what == "descent":
         descent(args.policy, args.episodes)
+    elif args.what == "turn":
+        turn(args.policy, args.episodes)
     elif args.what in ("locate", "parts"):
         (locate if args.what == "locate" else parts)(args.policy, args.checkpoint, args.episodes, args.sensor)
     else:

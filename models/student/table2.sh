@@ -390,11 +390,12 @@ ddgb6k_all() {  # next: DDG (b)'s depth of all 6000 demos (~2.7 h on 2 cores), f
 }
 
 fine_tunes() {  # prefix demos source threads [fit options...]: `ddgb6k`'s recipe, 8000 steps from the best GT
-    # student (gt6k_hpos_more_12k), then 12000 more, then the exec-4 export runs/student/PREFIX_hpos_more_12k_x4.onnx
+    # student ($START, default gt6k_hpos_more_12k), then 12000 more, then the exec-4 export
+    # runs/student/PREFIX_hpos_more_12k_x4.onnx
     local prefix=$1 demos=$2 source=$3 threads=$4 recipe="--hand-pose --object-offset --hand-target --seen-offset"
     shift 4
     finetune "${prefix}_hpos_8k" "$demos" "$source" "$threads" $recipe "$@" \
-        --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+        --init "runs/student/${START:-gt6k_hpos_more_12k}/ckpt.pt"
     finetune "${prefix}_hpos_more_12k" "$demos" "$source" "$threads" $recipe "$@" --steps 12000 \
         --init "runs/student/${prefix}_hpos_8k/ckpt.pt"
     python -m export "runs/student/${prefix}_hpos_more_12k/ckpt.pt" --ddim-steps 4 --exec-horizon 4 \
@@ -452,4 +453,29 @@ nografta6k() {  # `ddga6k`'s fine-tunes on the same store's DDG (a) depth withou
     key nografta6k_hpos_more_12k_x4
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k [NAME...]}"
+turn6k() {  # docs/student.md "The wrist's turn": the best GT student given --seen-turn (the object head reads the
+    # object's yaw from the fingers and the state encoder reads that), 12000 steps from it; its clean cells first
+    finetune gt6k_hpost_12k runs/sim/demos_seen_6k.zarr gt 2 --hand-pose --object-offset --hand-target \
+        --seen-offset --seen-turn --steps 12000 --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    python -m export runs/student/gt6k_hpost_12k/ckpt.pt --ddim-steps 4 --exec-horizon 4 \
+        --out runs/student/gt6k_hpost_12k_x4.onnx
+    for objects in seen unseen; do
+        cell gt6k_hpost_12k_x4 runs/student/gt6k_hpost_12k_x4.onnx none clean "$objects" 180 runs/table2/key
+    done
+}
+
+onefr6k() {  # docs/student.md "The wrist's turn": the best GT student reading one depth frame instead of three
+    # (--obs-horizon 1 --init folds the older frames' first-layer weights into it), 12000 steps; clean cells, and
+    # the wrist's turn at the close (diagnose.py turn)
+    finetune gt6k_hpos1_12k runs/sim/demos_seen_6k.zarr gt 2 --hand-pose --object-offset --hand-target \
+        --seen-offset --obs-horizon 1 --steps 12000 --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    python -m export runs/student/gt6k_hpos1_12k/ckpt.pt --ddim-steps 4 --exec-horizon 4 \
+        --out runs/student/gt6k_hpos1_12k_x4.onnx
+    for objects in seen unseen; do
+        cell gt6k_hpos1_12k_x4 runs/student/gt6k_hpos1_12k_x4.onnx none clean "$objects" 180 runs/table2/key
+    done
+    python models/student/diagnose.py turn student:runs/student/gt6k_hpos1_12k_x4.onnx --episodes 60 \
+        > runs/table2/turn_gt6k_hpos1_12k.log 2>&1
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k [NAME...]}"

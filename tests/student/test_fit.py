@@ -124,6 +124,32 @@ def test_init_adds_the_hand_pose_to_a_student_without_it(small_demos, tmp_path):
         fit_main([*fit_args(small_demos, tmp_path / "back", 1), "--init", str(posed / "ckpt.pt")])
 
 
+def test_init_with_fewer_frames_keeps_what_the_student_does_on_a_still_scene(small_demos, tmp_path):
+    """--obs-horizon 1 --init from a 3-frame student: on an episode's first step (its frame stacked three
+    times) the 1-frame student gives the source's output; on a moving scene they differ; more frames than the
+    source read are refused."""
+    from dataclasses import replace
+
+    plain = _fitted(small_demos, tmp_path)
+    source = checkpoint.load(plain)
+    one = DemoDataset(small_demos, "gt", 1, 16)
+    start = warm_start(plain, replace(source.config, obs_horizon=1), checkpoint.TrainingInfo(), one)
+    before, after = source.policy().eval(), start.policy().eval()
+    three = DemoDataset(small_demos, "gt", 3, 16)
+    with torch.no_grad():  # the first layer (at this tiny resolution the pooled features are constant)
+        def first_layer(net, stack):
+            return net.encoder.stem(torch.from_numpy(stack[None]))
+        still = first_layer(before, three.depth_stack(0))
+        torch.testing.assert_close(first_layer(after, one.depth_stack(0)), still, atol=1e-5, rtol=0)
+        moving = np.stack([one.depth_stack(i)[0] for i in (0, 6, 11)])
+        assert not torch.allclose(first_layer(after, moving[2:]), first_layer(before, moving), atol=1e-3)
+    assert start.model["encoder.stem.0.weight"].shape[1] == 1
+    short = tmp_path / "short"
+    assert fit_main([*fit_args(small_demos, short, 1), "--obs-horizon", "1", "--init", str(plain)]) == 0
+    with pytest.raises(FitError, match="--init"):
+        fit_main([*fit_args(small_demos, tmp_path / "longer", 1), "--obs-horizon", "4", "--init", str(plain)])
+
+
 def test_object_offset_decodes_the_object_head_in_the_demos_units(small_demos, tmp_path):
     """--object-offset: the object head's standardised estimate is turned back into metres with the same
     statistics the training targets were standardised with, and the offset from the hand enters the state
@@ -166,6 +192,73 @@ def test_seen_offset_feeds_the_object_heads_own_offset_reading(small_demos, tmp_
                                    net.object_head(features)[:, 2:4], rtol=0, atol=0)
     with pytest.raises(StudentConfigError, match="hand_target"):
         fit_main([*fit_args(small_demos, tmp_path / "headless", 1), "--seen-offset"])
+
+
+def test_turn_target_is_the_objects_yaw_from_the_fingers_doubled(small_demos):
+    """--seen-turn's targets: the first five columns are the hand target's; the last two are cos and sin of
+    twice the episode's object yaw minus the yaw of the fingers' closing axis (the grasp site's y axis) as
+    the simulated arm puts it at each recorded joint state."""
+    import mujoco
+
+    from hil_sim.world import World
+    from trainer.dataset import DemoStore
+    from trainer.student.data import privileged_targets
+
+    store = DemoStore.open(small_demos)
+    targets = privileged_targets(store, hand_target=True, turn=True)
+    assert targets.shape[1] == 7
+    np.testing.assert_array_equal(targets[:, :5], privileged_targets(store, hand_target=True))
+    state = np.asarray(store.root["data/state"][:])
+    yaws = [json.loads(str(r))["object_yaw"] for r in store.root["meta/randomisation"][:]]
+    world = World(kinds=())
+    try:
+        for i in (0, 7, 12, len(state) - 1):
+            world.data.qpos[:7] = state[i, :7]
+            mujoco.mj_kinematics(world.model, world.data)
+            closing = world.ee_xmat()[:, 1]
+            turn = 2 * (yaws[i // 12] - np.arctan2(closing[1], closing[0]))
+            np.testing.assert_allclose(targets[i, 5:], [np.cos(turn), np.sin(turn)], atol=1e-5)
+    finally:
+        world.close()
+
+
+def test_seen_turn_feeds_the_object_heads_yaw_reading_and_is_probed(small_demos, tmp_path):
+    """--seen-turn widens the object head to 7 outputs, its outputs 5:7 enter the state MLP last, and probe
+    reports the yaw error in degrees; from a --seen-offset student it starts as the same function."""
+    from dataclasses import replace
+
+    from trainer.student.config import StudentConfigError
+    from trainer.student.probe import locate
+
+    offset = tmp_path / "offset"
+    common = ["--hand-target", "--hand-pose", "--seen-offset"]
+    assert fit_main([*fit_args(small_demos, offset, 1), *common]) == 0
+    source = checkpoint.load(offset / "ckpt.pt")
+    data = DemoDataset(small_demos, "gt", 3, 16, hand_target=True, turn=True)
+    start = warm_start(offset / "ckpt.pt", replace(source.config, seen_turn=True), checkpoint.TrainingInfo(),
+                       data)
+    before, after = source.policy().eval(), start.policy().eval()
+    batch = data.batch(np.arange(4))
+    x, k = torch.randn(4, 16, 8, generator=torch.Generator().manual_seed(0)), torch.tensor([1, 30, 60, 99])
+    with torch.no_grad():
+        torch.testing.assert_close(after(x, k, after.encode(batch.depth, batch.state)),
+                                   before(x, k, before.encode(batch.depth, batch.state)), atol=1e-6, rtol=0)
+        features = after.encoder(batch.depth)
+        torch.testing.assert_close(after.object_head(features)[:, :5], before.object_head(features))
+        torch.testing.assert_close(after.state_input(features, batch.state)[:, -2:],
+                                   after.object_head(features)[:, 5:7], rtol=0, atol=0)
+    assert after.object_head.out_features == 7 and after.state_mlp[0].in_features == 8 + 9 + 2 + 2
+    turned = tmp_path / "turned"
+    assert fit_main([*fit_args(small_demos, turned, 1), *common, "--seen-turn", "--init",
+                     str(offset / "ckpt.pt")]) == 0
+    got = locate(str(turned / "ckpt.pt"), str(small_demos), "gt", every=1)
+    assert 0 <= got["turn_err_deg"]["median"] <= 90 and np.isfinite(got["hand_offset_err_cm"]["median"])
+    assert "turn_err_deg" not in locate(str(offset / "ckpt.pt"), str(small_demos), "gt", every=1)
+    with pytest.raises(StudentConfigError, match="hand_target"):
+        fit_main([*fit_args(small_demos, tmp_path / "headless", 1), "--seen-turn"])
+    with pytest.raises(FitError, match="object-loss"):
+        fit_main([*fit_args(small_demos, tmp_path / "blind", 1), *common, "--seen-turn", "--object-loss",
+                  "0"])
 
 
 def test_torchrun_two_gloo_processes(small_demos, tmp_path):

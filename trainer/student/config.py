@@ -51,7 +51,15 @@ class StudentConfig:
     from the hand, read off the depth image where both are seen (no camera-pose error, unlike the absolute
     position that ``object_offset`` starts from); then part of the exported graph."""
 
+    seen_turn: bool = False
+    """With ``hand_target``: the object head also reads, from depth, the object's yaw relative to the
+    fingers' closing axis (cos and sin of twice it: a grasp turned by pi is the same grasp), and the state
+    encoder reads that estimate; then part of the exported graph. The GT students close on elongated kinds
+    with the fingers 60 degrees off the expert's direction in their failed grasps (docs/student.md)."""
+
     def __post_init__(self) -> None:
+        if self.seen_turn and not self.hand_target:
+            raise StudentConfigError("seen_turn needs hand_target (the head's hand-relative outputs)")
         if self.seen_offset and not self.hand_target:
             raise StudentConfigError("seen_offset needs hand_target (the head's offset outputs)")
         if self.object_offset and not self.hand_pose:

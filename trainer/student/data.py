@@ -61,10 +61,11 @@ class DemoDataset:
 
     def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int,
                  hand_target: bool = False, target_reference: np.ndarray | None = None,
-                 episodes: int = 0) -> None:
+                 episodes: int = 0, turn: bool = False) -> None:
         """``target_reference``: the privileged targets whose mean and std standardise this store's (default:
         its own); a store that only trains the object head is standardised like the training demos.
-        ``episodes``: only the store's first this many (0 = all)."""
+        ``episodes``: only the store's first this many (0 = all). ``hand_target``, ``turn``: the privileged
+        targets' columns (``privileged_targets``)."""
         if depth_source not in DEPTH_ARRAYS:
             raise DemoDataError(f"unknown depth source {depth_source!r}; "
                                 f"choose one of {sorted(DEPTH_ARRAYS)}")
@@ -91,7 +92,7 @@ class DemoDataset:
         steps_per_ep = self.ends - starts
         self._start = np.repeat(starts, steps_per_ep)
         self._end = np.repeat(self.ends, steps_per_ep)
-        self.raw_targets = privileged_targets(store, hand_target, n)
+        self.raw_targets = privileged_targets(store, hand_target, n, turn)
         reference = self.raw_targets if target_reference is None else target_reference
         self.targets = None if self.raw_targets is None else standardise(self.raw_targets, reference)
 
@@ -152,19 +153,27 @@ def check_generated(store: DemoStore, key: str, n: int, path: str | Path) -> Non
 def object_positions(store: DemoStore) -> np.ndarray | None:
     """Per step [N, 2], metres: where the step's object was placed (``object_xy`` of the episode's recorded
     randomisation), or None if an episode does not record it."""
+    return _per_step(store, "object_xy", 2)
+
+
+def _per_step(store: DemoStore, key: str, width: int) -> np.ndarray | None:
+    """The episodes' recorded randomisation ``key`` repeated over their steps [N, width], or None if an
+    episode does not record it."""
     draws = [json.loads(str(r)) for r in store.root["meta/randomisation"][:]]
-    if not all("object_xy" in d for d in draws):
+    if not all(key in d for d in draws):
         return None
-    per_episode = np.array([d["object_xy"] for d in draws], dtype=np.float32).reshape(-1, 2)
+    per_episode = np.array([d[key] for d in draws], dtype=np.float32).reshape(-1, width)
     return np.repeat(per_episode, store.episode_lengths, axis=0)
 
 
-def privileged_targets(store: DemoStore, hand_target: bool, steps: int | None = None) -> np.ndarray | None:
+def privileged_targets(store: DemoStore, hand_target: bool, steps: int | None = None,
+                       turn: bool = False) -> np.ndarray | None:
     """Per step [N, 2], metres: the object's table position (``object_positions``); with ``hand_target``
     [N, 5]: then the hand relative to it, from the recorded joint state by forward kinematics (object minus
     grasp site in x and y, and the grasp site's height above the table), which decides where to move and
-    when to close. None if an episode does not record the object's position. ``steps``: the first this
-    many steps only."""
+    when to close; with ``turn`` (and ``hand_target``) [N, 7]: then the object's placed yaw relative to the
+    fingers' closing axis, as cos and sin of twice the angle (a grasp turned by pi is the same grasp). None
+    if an episode does not record the object's position. ``steps``: the first this many steps only."""
     placed = object_positions(store)
     if placed is None:
         return None
@@ -173,14 +182,23 @@ def privileged_targets(store: DemoStore, hand_target: bool, steps: int | None = 
         return placed
     kinematics = ArmKinematics()
     state = np.asarray(store.root["data/state"][: len(placed)], dtype=np.float64)
-    hand = np.array([kinematics.site(np.r_[q[:7], 0.0, 0.0])[0] for q in state])  # fingers: no effect
-    return np.column_stack([placed, placed - hand[:, :2], hand[:, 2] - TABLE_Z]).astype(np.float32)
+    sites = [kinematics.site(np.r_[q[:7], 0.0, 0.0]) for q in state]  # fingers: no effect
+    hand = np.array([pos for pos, _ in sites])
+    columns = [placed, placed - hand[:, :2], hand[:, 2] - TABLE_Z]
+    if turn:
+        yaw = _per_step(store, "object_yaw", 1)
+        if yaw is None:
+            raise DemoDataError("an episode of the demos records no object_yaw, which seen_turn learns")
+        fingers = np.array([np.arctan2(rot[1, 1], rot[0, 1]) for _, rot in sites])  # the closing axis (y)
+        relative = 2 * (yaw[: len(placed), 0] - fingers)
+        columns += [np.cos(relative), np.sin(relative)]
+    return np.column_stack(columns).astype(np.float32)
 
 
-def training_targets(data: dict, hand_target: bool) -> np.ndarray | None:
+def training_targets(data: dict, hand_target: bool, turn: bool = False) -> np.ndarray | None:
     """``privileged_targets`` of the demos a checkpoint was trained on (its ``info.data`` fingerprint): the
     reference its object head's units are standardised over."""
-    return privileged_targets(DemoStore.open(data["demos"]), hand_target, data.get("steps"))
+    return privileged_targets(DemoStore.open(data["demos"]), hand_target, data.get("steps"), turn)
 
 
 def column_scale(reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -160,9 +160,15 @@ HAND_FEATURES = 9
 
 def state_inputs(config: StudentConfig) -> int:
     """Width of the state MLP's input: the state, the hand pose (9) and the object's offset from it (2 for
-    each of ``object_offset`` and ``seen_offset``)."""
-    offsets = config.object_offset + config.seen_offset
-    return config.state_dim + HAND_FEATURES * config.hand_pose + 2 * offsets
+    each of ``object_offset`` and ``seen_offset``, and the yaw reading of ``seen_turn``)."""
+    readings = config.object_offset + config.seen_offset + config.seen_turn
+    return config.state_dim + HAND_FEATURES * config.hand_pose + 2 * readings
+
+
+def object_outputs(config: StudentConfig) -> int:
+    """Outputs of the object head: the object's table position (2), then with ``hand_target`` the hand
+    relative to it (3), then with ``seen_turn`` the object's yaw relative to the fingers (2)."""
+    return 2 + 3 * config.hand_target + 2 * config.seen_turn
 
 
 def hand_pose(state: torch.Tensor) -> torch.Tensor:
@@ -193,9 +199,10 @@ class StudentPolicy(nn.Module):
                                        nn.ReLU(), nn.Linear(config.state_features, config.state_features))
         obs_dim = self.encoder.out_features + config.state_features
         self.head = ConditionalUnet1d(config.action_dim, obs_dim, config.head_dims, config.step_features)
-        self.object_head = nn.Linear(self.encoder.out_features, 5 if config.hand_target else 2)
-        """Training only (not in the exported graph): the object's table position from the depth features,
-        then (``hand_target``) the hand's offset from it (``trainer.student.data.privileged_targets``)."""
+        self.object_head = nn.Linear(self.encoder.out_features, object_outputs(config))
+        """Training only unless a state input reads it: the object's table position from the depth features,
+        then (``hand_target``) the hand's offset from it, then (``seen_turn``) the object's yaw relative to
+        the fingers (``trainer.student.data.privileged_targets``)."""
 
     def encode(self, depth: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """Preprocessed depth [B, To, H, W] + raw state [B, S] -> observation feature [B, F]."""
@@ -207,12 +214,13 @@ class StudentPolicy(nn.Module):
     def state_input(self, depth_features: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """The state MLP's input: the normalised state, then (``hand_pose``) the normalised hand pose, then
         (``object_offset``) the normalised offset of the object head's estimate from the hand, then
-        (``seen_offset``) the object head's own reading of that offset, in its standardised units."""
+        (``seen_offset``) the object head's own reading of that offset, then (``seen_turn``) its reading of
+        the object's yaw relative to the fingers, both in its standardised units."""
         parts = [self.state_norm.normalise(state)]
         if self.config.hand_pose:
             hand = hand_pose(state)
             parts.append(self.hand_norm.normalise(hand))
-        if not (self.config.object_offset or self.config.seen_offset):
+        if not (self.config.object_offset or self.config.seen_offset or self.config.seen_turn):
             return torch.cat(parts, dim=-1)
         estimate = self.object_head(depth_features)
         if self.config.object_offset:
@@ -221,6 +229,8 @@ class StudentPolicy(nn.Module):
             parts.append(self.offset_norm.normalise(located - hand[:, :2]))
         if self.config.seen_offset:
             parts.append(estimate[:, 2:4])
+        if self.config.seen_turn:
+            parts.append(estimate[:, 5:7])
         return torch.cat(parts, dim=-1)
 
     def fit_normalisers(self, state: np.ndarray, action: np.ndarray,

@@ -62,13 +62,14 @@ def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
 
 def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     """The object head's error on ``demos`` (cm), against predicting the training demos' mean position; for
-    a head with the hand target also the error of the hand's offset from the object."""
+    a head with the hand target also the error of the hand's offset from the object, and with ``seen_turn``
+    of the object's yaw relative to the fingers (degrees, modulo pi)."""
     ckpt = checkpoint.load(Path(ckpt_path))
     if "demos" not in ckpt.info.data:
         raise DemoDataError(f"{ckpt_path} records no training demos (an untrained checkpoint?)")
-    hand = ckpt.config.hand_target
-    trained_on = training_targets(ckpt.info.data, hand)
-    probed = privileged_targets(DemoStore.open(demos), hand)
+    hand, turn = ckpt.config.hand_target, ckpt.config.seen_turn
+    trained_on = training_targets(ckpt.info.data, hand, turn)
+    probed = privileged_targets(DemoStore.open(demos), hand, turn=turn)
     if trained_on is None or probed is None:
         raise DemoDataError("object positions are not recorded in the training or the probed demos")
     data = DemoDataset(demos, depth_source, ckpt.config.obs_horizon, ckpt.config.action_horizon)
@@ -82,8 +83,12 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     result = {"object_err_cm": {"median": float(np.median(err)), "mean": float(err.mean())},
               "mean_position_err_cm": float(mean_err.mean())}
     if hand:
-        hand_err = np.linalg.norm(predicted[:, 2:] - probed[steps, 2:], axis=1) * 100
+        hand_err = np.linalg.norm(predicted[:, 2:5] - probed[steps, 2:5], axis=1) * 100
         result["hand_offset_err_cm"] = {"median": float(np.median(hand_err)), "mean": float(hand_err.mean())}
+    if turn:  # the angle between the two doubled-yaw directions, halved back
+        doubled = [np.arctan2(x[:, 6], x[:, 5]) for x in (predicted, probed[steps])]
+        turn_err = np.degrees(np.abs(np.angle(np.exp(1j * (doubled[0] - doubled[1]))))) / 2
+        result["turn_err_deg"] = {"median": float(np.median(turn_err)), "mean": float(turn_err.mean())}
     return result
 
 

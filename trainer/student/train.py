@@ -126,7 +126,7 @@ def object_frames(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset) -
     if not cfg.object_loss:
         raise FitError("--object-demos trains the object head: it needs --object-loss > 0")
     extra = DemoDataset(cfg.object_demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
-                        model_cfg.hand_target, target_reference=data.raw_targets)
+                        model_cfg.hand_target, target_reference=data.raw_targets, turn=model_cfg.seen_turn)
     if extra.targets is None:
         raise FitError(f"{cfg.object_demos} does not record object_xy for every episode")
     return extra
@@ -179,33 +179,56 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
 
 def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo, data: DemoDataset) -> Checkpoint:
     """A new run whose weights, EMA and normalisers are ``init``'s EMA weights. A student may gain the
-    ``hand_pose`` and ``object_offset`` inputs on the way (``with_state_inputs``), not lose them."""
+    state inputs of ``STATE_INPUT_OPTIONS`` on the way (``with_state_inputs``), not lose them, and may read
+    fewer frames (``with_fewer_frames``)."""
     source = checkpoint.load(init)
     added = {name for name in STATE_INPUT_OPTIONS if getattr(model_cfg, name) != getattr(source.config, name)}
-    if (replace(source.config, **{name: getattr(model_cfg, name) for name in added}) != model_cfg
-            or any(getattr(source.config, name) for name in added)):
+    changed = {name: getattr(model_cfg, name) for name in (*added, "obs_horizon")}
+    if (replace(source.config, **changed) != model_cfg or any(getattr(source.config, name) for name in added)
+            or model_cfg.obs_horizon > source.config.obs_horizon):
         raise FitError(f"--init {init} is a {source.config}, not the requested {model_cfg}")
     info = replace(info, data={**info.data, "init": str(init.resolve()),
                                "init_sha256": checkpoint.sha256(init)})
     weights = with_state_inputs(source.ema, model_cfg, data) if added else source.ema
+    if model_cfg.obs_horizon < source.config.obs_horizon:
+        weights = with_fewer_frames(weights, model_cfg.obs_horizon)
     return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in weights.items()},
                       model={k: v.clone() for k, v in weights.items()})
 
 
-STATE_INPUT_OPTIONS = ("hand_pose", "object_offset")
+STATE_INPUT_OPTIONS = ("hand_pose", "object_offset", "seen_turn")
 
 
 def with_state_inputs(weights: dict[str, torch.Tensor], model_cfg: StudentConfig,
                       data: DemoDataset) -> dict[str, torch.Tensor]:
-    """The weights of a student with more state inputs (``hand_pose``, ``object_offset``) from one with
-    fewer: the state MLP's first layer gets zero weights for the new inputs, so the network starts as the
-    same function; the new normalisers are fitted to ``data``."""
+    """The weights of a student with more state inputs (``STATE_INPUT_OPTIONS``) from one with fewer: the
+    state MLP's first layer gets zero weights for the new inputs, so the network starts as the same
+    function; new object-head outputs (``seen_turn``) start from the fresh network's weights; the new
+    normalisers are fitted to ``data``."""
     net = StudentPolicy(model_cfg)
     fit_to_demos(net, data)
+    fresh = net.state_dict()
     first = "state_mlp.0.weight"
-    new_inputs = net.state_dict()[first].shape[1] - weights[first].shape[1]
-    widened = torch.cat([weights[first], torch.zeros(weights[first].shape[0], new_inputs)], dim=1)
-    return {**net.state_dict(), **weights, first: widened}
+    new_inputs = fresh[first].shape[1] - weights[first].shape[1]
+    widened = {first: torch.cat([weights[first], torch.zeros(weights[first].shape[0], new_inputs)], dim=1)}
+    for name in ("object_head.weight", "object_head.bias"):
+        kept = weights[name].shape[0]
+        widened[name] = torch.cat([weights[name], fresh[name][kept:]])
+    return {**fresh, **weights, **widened}
+
+
+STEM = "encoder.stem.0.weight"
+"""The encoder's first convolution: one input channel per stacked depth frame, oldest first."""
+
+
+def with_fewer_frames(weights: dict[str, torch.Tensor], frames: int) -> dict[str, torch.Tensor]:
+    """The weights of a student that reads the last ``frames`` depth frames from one that read more: the
+    dropped (older) frames' first-layer weights are added to the oldest kept frame's, so on a still scene
+    (every frame alike, as at an episode's start) the network computes what the source did."""
+    first = weights[STEM]
+    kept = first[:, -frames:].clone()
+    kept[:, 0] += first[:, :-frames].sum(dim=1)
+    return {**weights, STEM: kept}
 
 
 def fit_to_demos(net: StudentPolicy, data: DemoDataset) -> None:
@@ -239,10 +262,10 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
     if cfg.batch % world:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
     data = DemoDataset(cfg.demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
-                       model_cfg.hand_target, episodes=cfg.episodes)
-    if (model_cfg.object_offset or model_cfg.seen_offset) and not cfg.object_loss:
-        raise FitError("--object-offset and --seen-offset read the object head's estimate: they need "
-                       "--object-loss > 0")
+                       model_cfg.hand_target, episodes=cfg.episodes, turn=model_cfg.seen_turn)
+    if (model_cfg.object_offset or model_cfg.seen_offset or model_cfg.seen_turn) and not cfg.object_loss:
+        raise FitError("--object-offset, --seen-offset and --seen-turn read the object head's estimate: they "
+                       "need --object-loss > 0")
     if cfg.object_loss and data.targets is None:
         raise FitError(f"{cfg.demos} does not record object_xy for every episode; train with --object-loss 0")
     extra = object_frames(cfg, model_cfg, data)
