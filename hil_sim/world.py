@@ -82,6 +82,10 @@ class Randomisation:
     """Passive spring of each arm joint towards the home pose, N m / rad."""
     init_joint_noise: float = 0.05
     """Uniform +- noise on the home joint angles, rad."""
+    wrist_noise: float = 0.05
+    """Uniform +- noise on the wrist's (joint 7) home angle, rad. Demos may widen it (``trainer collect
+    --wrist-noise``): with the wrist always starting near home, its angle alone tells a student which way the
+    expert has been turning it, and the student learns that instead of reading the object's yaw."""
     camera_pos_noise: float = 0.02
     """Uniform +- offset of the camera position per axis, m."""
     camera_rot_noise_deg: float = 2.0
@@ -163,7 +167,10 @@ class World:
         left += int(rng.integers(-r.crop_shift[1], r.crop_shift[1] + 1))
         top = int(np.clip(top, 0, self.spec.stream_height - self.spec.crop_height))
         left = int(np.clip(left, 0, self.spec.stream_width - self.spec.crop_width))
-        q0 = np.asarray(HOME_Q) + rng.uniform(-r.init_joint_noise, r.init_joint_noise, n)
+        noise = rng.uniform(-r.init_joint_noise, r.init_joint_noise, n)
+        if r.wrist_noise != r.init_joint_noise:  # the same draw, rescaled: default episodes are unchanged
+            noise[6] *= r.wrist_noise / r.init_joint_noise
+        q0 = np.asarray(HOME_Q) + noise
         return Episode(kind, seed, True, _round(xy), float(yaw), _round(q0), (top, left), _round(cam_pos),
                        _round(quat),
                        link_mass_scale=_round(rng.uniform(*r.link_mass_scale, len(self._ids.links))),

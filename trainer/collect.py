@@ -48,6 +48,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="DART: std of Gaussian noise on the teacher's joint actions as executed (normalised "
                         "units; actions span [-1, 1]); the stored actions are the teacher's own, so a "
                         "student sees how to recover from the drift its own errors cause (0: off)")
+    p.add_argument("--wrist-noise", type=float, default=EnvConfig.wrist_noise,
+                   help="uniform +- noise on the wrist's (joint 7) start angle, rad: wider than the default, "
+                        "the wrist's angle no longer tells a student which way the expert turns it "
+                        "(docs/student.md \"The wrist's turn\")")
     p.add_argument("--max-attempts", type=int, default=0,
                    help="give up after this many attempts in the store (0: 2 x N + 20)")
     return p
@@ -68,13 +72,14 @@ def collect(args: argparse.Namespace) -> dict:
     parse(args.teacher)
     make_sensor(args.sensor)  # an unknown sensor is refused before a store is made
     kinds = object_list(args.objects)
-    config = EnvConfig(objects=kinds, render_depth=not args.no_depth, render_rgb=args.rgb)
+    config = EnvConfig(objects=kinds, render_depth=not args.no_depth, render_rgb=args.rgb,
+                       wrist_noise=args.wrist_noise)
     spec = DepthSpec()
     store = DemoStore.create(args.out, spec=spec, action_scale=config.action_scale,
                              control_rate_hz=config.control_rate_hz, rgb=args.rgb,
                              sensor=None if args.sensor == "clean" else args.sensor,
                              attrs={"teacher": args.teacher, "seed": args.seed, "objects": list(kinds),
-                                    "action_noise": args.action_noise})
+                                    "action_noise": args.action_noise, "wrist_noise": args.wrist_noise})
     start_attempt = int(store.attrs["attempted"])
     limit = args.max_attempts or 2 * args.episodes + 20
     jobs = [Job(args.seed + i, kinds[i % len(kinds)]) for i in range(start_attempt, limit)]

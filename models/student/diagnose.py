@@ -9,6 +9,7 @@
                                                           [--sensor stereo]    # on what the sensor shows
     python models/student/diagnose.py parts scripted --checkpoint ckpt.pt --sensor stereo   # holes or values?
     python models/student/diagnose.py turn student:S.onnx --episodes 40     # the wrist's turn at the close
+    python models/student/diagnose.py copycat S.onnx --demos D.zarr   # its wrist turn on the demos, by step
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
 look like; ``spread`` regresses a policy's closing offset (object minus grasp site when it first closes the
@@ -21,7 +22,11 @@ hand comes near. ``parts`` splits what a sensor does to that estimate: its frame
 its depth with the holes filled from clean depth, and clean depth, over the same steps. ``turn`` runs the
 elongated seen kinds (banana, block: the same seeds as ``trainer evaluate``'s) and says, for the grasps that
 succeed and those that fail, how far the fingers' closing axis is turned from the expert's grasp direction at
-the first close (degrees, modulo 180) and how far the object is from the grasp site then.
+the first close (degrees, modulo 180) and how far the object is from the grasp site then. ``copycat`` runs
+a student file on the demos' own frames and states (the elongated kinds, the first steps of each episode) and
+correlates its wrist-turn action (joint 7, the first of each chunk) with the expert's, by step in the episode:
+at step 0 the frame history is one frame repeated, so only what the student sees, not the motion it copies,
+can tell it which way to turn.
 """
 
 from __future__ import annotations
@@ -196,6 +201,32 @@ def turn(policy: str, episodes: int) -> None:
                   f"{np.percentile(turns, 90):.0f}), {np.median(aside):.2f} cm aside")
 
 
+COPYCAT_STEPS = {"0-1": (0, 2), "2-5": (2, 6), "6-11": (6, 12), "12-29": (12, 30)}
+"""copycat: steps of each episode, from its start."""
+
+
+def copycat(policy_path: str, demos: str) -> None:
+    from trainer.dataset import DemoStore
+    from trainer.student.data import DemoDataset
+    from trainer.student.onnx_policy import StudentOnnxPolicy
+    from trainer.student.probe import env_chunk
+
+    policy = StudentOnnxPolicy(policy_path)
+    data = DemoDataset(demos, "gt", policy.meta.obs_horizon, policy.meta.action_horizon)
+    kinds = [str(k) for k in DemoStore.open(demos).root["meta/kind"][:]]
+    starts = [int(s) for s, k in zip(np.r_[0, data.ends[:-1]], kinds, strict=True) if k in ELONGATED]
+    rng = np.random.default_rng(0)
+    for name, (lo, hi) in COPYCAT_STEPS.items():
+        steps = [s + i for s in starts for i in range(lo, hi)]
+        noise = [rng.standard_normal(policy.runtime.noise_shape, dtype=np.float32) for _ in steps]
+        turn = np.array([env_chunk(policy, data.depth_stack(i), data.state[i], n)[0, 6]
+                         for i, n in zip(steps, noise, strict=True)])
+        expert = data.action[steps, 6]
+        print(f"steps {name} ({len(steps)}): wrist turn vs the expert's, correlation "
+              f"{np.corrcoef(turn, expert)[0, 1]:.2f}; mean |turn| {np.abs(turn).mean():.2f} "
+              f"(expert {np.abs(expert).mean():.2f})", flush=True)
+
+
 class ObjectEstimate:
     """A student checkpoint's training-only object head, read in metres over an episode's frames."""
 
@@ -278,10 +309,12 @@ def parts(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None:
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", choices=["tolerance", "spread", "dart", "descent", "locate", "parts", "turn"])
+    p.add_argument("what", choices=["tolerance", "spread", "dart", "descent", "locate", "parts", "turn",
+                                    "copycat"])
     p.add_argument("policy", nargs="?", default="scripted",
                    help="a trainer policy spec (spread, descent, locate, parts, turn)")
     p.add_argument("--checkpoint", help="locate, parts: the student checkpoint whose object head is measured")
+    p.add_argument("--demos", help="copycat: the demo store whose frames and states the student is run on")
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--sensor", default="clean",
                    help="locate, parts: the depth sensor the policy sees (as evaluate's: clean, stereo, ...)")
@@ -289,6 +322,8 @@ def main() -> None:
     args = p.parse_args()
     if args.what in ("locate", "parts") and not args.checkpoint:
         p.error(f"{args.what} needs --checkpoint (the student whose object head is measured)")
+    if args.what == "copycat" and not args.demos:
+        p.error("copycat needs --demos (the demo store to run the student on)")
     if args.what == "tolerance":
         tolerance(args.episodes)
     elif args.what == "dart":
@@ -297,6 +332,8 @@ def main() -> None:
         descent(args.policy, args.episodes)
     elif args.what == "turn":
         turn(args.policy, args.episodes)
+    elif args.what == "copycat":
+        copycat(args.policy, args.demos)
     elif args.what in ("locate", "parts"):
         (locate if args.what == "locate" else parts)(args.policy, args.checkpoint, args.episodes, args.sensor)
     else:

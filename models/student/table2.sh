@@ -478,4 +478,22 @@ onefr6k() {  # docs/student.md "The wrist's turn": the best GT student reading o
         > runs/table2/turn_gt6k_hpos1_12k.log 2>&1
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k [NAME...]}"
+wrist() {  # docs/student.md "The wrist's turn": 1000 demos whose wrist starts anywhere in +-1.5 rad (the default +-0.05
+    # lets the wrist's angle tell a student which way the expert turns it), the best GT student fine-tuned 12000
+    # steps on them; clean cells, the wrist's turn at the close, and its turn on held-out demos by step
+    python -m trainer collect --episodes 1000 --objects seen --seed 50000 --wrist-noise 1.5 --workers 2 \
+        --out runs/sim/demos_seen_wrist.zarr
+    finetune wrist_hpos_12k runs/sim/demos_seen_wrist.zarr gt 2 --hand-pose --object-offset --hand-target \
+        --seen-offset --steps 12000 --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    python -m export runs/student/wrist_hpos_12k/ckpt.pt --ddim-steps 4 --exec-horizon 4 \
+        --out runs/student/wrist_hpos_12k_x4.onnx
+    for objects in seen unseen; do
+        cell wrist_hpos_12k_x4 runs/student/wrist_hpos_12k_x4.onnx none clean "$objects" 180 runs/table2/key
+    done
+    python models/student/diagnose.py turn student:runs/student/wrist_hpos_12k_x4.onnx --episodes 60 \
+        > runs/table2/turn_wrist_hpos_12k.log 2>&1
+    python models/student/diagnose.py copycat runs/student/wrist_hpos_12k_x4.onnx \
+        --demos runs/student/heldout_60.zarr > runs/table2/copycat_wrist_hpos_12k.log 2>&1
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist [NAME...]}"

@@ -60,3 +60,21 @@ def test_randomisation_is_undone_by_a_nominal_reset(world: World) -> None:
     for name, value in _model_params(world).items():
         np.testing.assert_array_equal(value, nominal[name], err_msg=name)
     assert ep.crop_window == world.spec.centred_window() and not ep.randomised
+
+
+def test_wrist_noise_widens_the_wrist_start_alone(world: World) -> None:
+    """A wider ``wrist_noise`` (collect --wrist-noise) rescales the wrist's share of the same draw: every
+    other draw of the episode is unchanged, and the default leaves episodes as they were."""
+    wide = World(("banana",), randomisation=Randomisation(wrist_noise=1.5))
+    try:
+        wrists = []
+        for seed in range(6):
+            narrow, widened = world.reset("banana", seed=seed), wide.reset("banana", seed=seed)
+            assert widened.q0[:6] == narrow.q0[:6] and widened.object_xy == narrow.object_xy
+            assert widened.camera_pos == narrow.camera_pos and widened.joint_friction == narrow.joint_friction
+            assert widened.q0[6] - HOME_Q[6] == pytest.approx(30 * (narrow.q0[6] - HOME_Q[6]), abs=1e-4)
+            np.testing.assert_allclose(wide.q, widened.q0, atol=0.03)  # its spring pulls the wrist a little
+            wrists.append(widened.q0[6] - HOME_Q[6])
+        assert max(np.abs(wrists)) <= 1.5 and np.ptp(wrists) > 0.5
+    finally:
+        wide.close()

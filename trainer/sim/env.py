@@ -27,7 +27,7 @@ import gymnasium as gym
 import numpy as np
 
 from hil_sim import objects
-from hil_sim.world import TABLE_Z, World
+from hil_sim.world import TABLE_Z, Randomisation, World
 from runtime.preprocess import DepthSpec, crop_resize
 from trainer.sim.reward import Measures, RewardWeights, Status, reward
 
@@ -60,6 +60,8 @@ class EnvConfig:
     """Consecutive steps at the target (0.5 s at 10 Hz) that count as lifted without dropping."""
     randomise: bool = True
     """Domain randomisation (dynamics, initial joints, camera pose, crop window)."""
+    wrist_noise: float = Randomisation.wrist_noise
+    """Uniform +- noise on the wrist's home angle at reset, rad (``Randomisation.wrist_noise``)."""
     render_depth: bool = True
     """Render the depth frame every step (off for state-only teachers: much faster)."""
     render_rgb: bool = False
@@ -79,7 +81,8 @@ class GraspEnv(gym.Env):
     def __init__(self, config: EnvConfig | None = None, spec: DepthSpec | None = None) -> None:
         self.config = config or EnvConfig()
         self.spec = spec or DepthSpec()
-        self.world = World(self.config.objects, spec=self.spec)
+        self.world = World(self.config.objects, spec=self.spec,
+                           randomisation=Randomisation(wrist_noise=self.config.wrist_noise))
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (ACTION_DIM,), np.float32)
         self._dt = 1.0 / self.config.control_rate_hz

@@ -48,9 +48,9 @@ def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
     for n, i in enumerate(steps):
         true = data.action[data.action_indices(int(i))][: meta.exec_horizon]
         noise = rng.standard_normal(policy.runtime.noise_shape, dtype=np.float32)  # same for both calls
-        pred = _env_chunk(policy, stacks[n], data.state[i], noise)
+        pred = env_chunk(policy, stacks[n], data.state[i], noise)
         joint_err.append(np.abs(pred[:, :7] - true[:, :7]).mean())
-        shuffled = _env_chunk(policy, stacks[other[n]], data.state[i], noise)
+        shuffled = env_chunk(policy, stacks[other[n]], data.state[i], noise)
         shuffled_err.append(np.abs(shuffled[:, :7] - true[:, :7]).mean())
         zero_err.append(np.abs(true[:, :7]).mean())
         gripper_ok.append((np.sign(pred[:, 7]) == np.sign(true[:, 7])).mean())
@@ -92,7 +92,7 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     return result
 
 
-def _env_chunk(policy: StudentOnnxPolicy, stack: np.ndarray, state: np.ndarray,
+def env_chunk(policy: StudentOnnxPolicy, stack: np.ndarray, state: np.ndarray,
                noise: np.ndarray) -> np.ndarray:
     chunk = policy.runtime(stack, state, noise)
     return to_env_actions(chunk[: policy.meta.exec_horizon], policy.meta.action_scale)
