@@ -24,9 +24,9 @@ elongated seen kinds (banana, block: the same seeds as ``trainer evaluate``'s) a
 succeed and those that fail, how far the fingers' closing axis is turned from the expert's grasp direction at
 the first close (degrees, modulo 180) and how far the object is from the grasp site then. ``copycat`` runs
 a student file on the demos' own frames and states (the elongated kinds, the first steps of each episode) and
-correlates its wrist-turn action (joint 7, the first of each chunk) with the expert's, by step in the episode:
-at step 0 the frame history is one frame repeated, so only what the student sees, not the motion it copies,
-can tell it which way to turn.
+correlates its wrist-turn action (joint 7, the first of each chunk) with the expert's, by step in the episode,
+beside how well the wrist's angle off home alone predicts the expert's turn: at step 0 neither the wrist's
+angle nor the frame history says which way the expert turns, only the object's yaw in the image does.
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ import mujoco
 import numpy as np
 
 from hil_sim.objects import GROUPS
+from hil_sim.world import HOME_Q
 from trainer.policies import make_policy
 from trainer.sim.env import HAND_QUAT, OBJECT_FROM_HAND, OBJECT_POSITION, OBJECT_QUAT, EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, rollouts, run_episode
@@ -190,15 +191,16 @@ def turn(policy: str, episodes: int) -> None:
     rows = {True: [], False: []}
     for job in [j for j in jobs(3 * episodes) if j.kind in ELONGATED][:episodes]:
         won = run_episode(env, tracker, job).success
-        turned, aside = tracker.turns[-1], np.linalg.norm(tracker.offsets[-1][:2])
-        rows[won].append((turned, aside))
-        print(f"seed {job.seed} {job.kind:7s} success {int(won)}: fingers {turned:.0f} deg from the expert's "
-              f"direction, {aside:.2f} cm aside at the close", flush=True)
+        start, turned, aside = tracker.turns[0], tracker.turns[-1], np.linalg.norm(tracker.offsets[-1][:2])
+        rows[won].append((start, turned, aside))
+        print(f"seed {job.seed} {job.kind:7s} success {int(won)}: fingers {start:.0f} deg from the expert's "
+              f"direction at the start, {turned:.0f} deg and {aside:.2f} cm aside at the close", flush=True)
     for won, name in ((True, "succeeded"), (False, "failed")):
         if rows[won]:
-            turns, aside = np.array(rows[won]).T
+            starts, turns, aside = np.array(rows[won]).T
             print(f"{len(turns)} {name}: fingers off by median {np.median(turns):.0f} deg (p90 "
-                  f"{np.percentile(turns, 90):.0f}), {np.median(aside):.2f} cm aside")
+                  f"{np.percentile(turns, 90):.0f}) at the close, {np.median(starts):.0f} at the start; "
+                  f"{np.median(aside):.2f} cm aside")
 
 
 COPYCAT_STEPS = {"0-1": (0, 2), "2-5": (2, 6), "6-11": (6, 12), "12-29": (12, 30)}
@@ -221,10 +223,11 @@ def copycat(policy_path: str, demos: str) -> None:
         noise = [rng.standard_normal(policy.runtime.noise_shape, dtype=np.float32) for _ in steps]
         turn = np.array([env_chunk(policy, data.depth_stack(i), data.state[i], n)[0, 6]
                          for i, n in zip(steps, noise, strict=True)])
-        expert = data.action[steps, 6]
+        expert, wrist = data.action[steps, 6], data.state[steps, 6] - HOME_Q[6]
         print(f"steps {name} ({len(steps)}): wrist turn vs the expert's, correlation "
               f"{np.corrcoef(turn, expert)[0, 1]:.2f}; mean |turn| {np.abs(turn).mean():.2f} "
-              f"(expert {np.abs(expert).mean():.2f})", flush=True)
+              f"(expert {np.abs(expert).mean():.2f}); the expert's turn vs the wrist's angle off home, "
+              f"correlation {np.corrcoef(wrist, expert)[0, 1]:.2f}", flush=True)
 
 
 class ObjectEstimate:

@@ -453,47 +453,43 @@ nografta6k() {  # `ddga6k`'s fine-tunes on the same store's DDG (a) depth withou
     key nografta6k_hpos_more_12k_x4
 }
 
+wrist_measures() {  # name: the exec-4 export of runs/student/NAME, its clean cells, the wrist's turn at the close
+    # (diagnose.py turn) and its turn on the held-out demos by step (diagnose.py copycat)
+    python -m export "runs/student/$1/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/$1_x4.onnx"
+    for objects in seen unseen; do
+        cell "$1_x4" "runs/student/$1_x4.onnx" none clean "$objects" 180 runs/table2/key
+    done
+    python models/student/diagnose.py turn "student:runs/student/$1_x4.onnx" --episodes 60 \
+        > "runs/table2/turn_$1.log" 2>&1
+    python models/student/diagnose.py copycat "runs/student/$1_x4.onnx" --demos runs/student/heldout_60.zarr \
+        > "runs/table2/copycat_$1.log" 2>&1
+}
+
 turn6k() {  # docs/student.md "The wrist's turn": the best GT student given --seen-turn (the object head reads the
-    # object's yaw from the fingers and the state encoder reads that), 12000 steps from it; its clean cells first
+    # object's yaw from the fingers and the state encoder reads that), 12000 steps from it
     finetune gt6k_hpost_12k runs/sim/demos_seen_6k.zarr gt 2 --hand-pose --object-offset --hand-target \
         --seen-offset --seen-turn --steps 12000 --init runs/student/gt6k_hpos_more_12k/ckpt.pt
-    python -m export runs/student/gt6k_hpost_12k/ckpt.pt --ddim-steps 4 --exec-horizon 4 \
-        --out runs/student/gt6k_hpost_12k_x4.onnx
-    for objects in seen unseen; do
-        cell gt6k_hpost_12k_x4 runs/student/gt6k_hpost_12k_x4.onnx none clean "$objects" 180 runs/table2/key
-    done
+    wrist_measures gt6k_hpost_12k
 }
 
 onefr6k() {  # docs/student.md "The wrist's turn": the best GT student reading one depth frame instead of three
-    # (--obs-horizon 1 --init folds the older frames' first-layer weights into it), 12000 steps; clean cells, and
-    # the wrist's turn at the close (diagnose.py turn)
+    # (--obs-horizon 1 --init folds the older frames' first-layer weights into it), 12000 steps
     finetune gt6k_hpos1_12k runs/sim/demos_seen_6k.zarr gt 2 --hand-pose --object-offset --hand-target \
         --seen-offset --obs-horizon 1 --steps 12000 --init runs/student/gt6k_hpos_more_12k/ckpt.pt
-    python -m export runs/student/gt6k_hpos1_12k/ckpt.pt --ddim-steps 4 --exec-horizon 4 \
-        --out runs/student/gt6k_hpos1_12k_x4.onnx
-    for objects in seen unseen; do
-        cell gt6k_hpos1_12k_x4 runs/student/gt6k_hpos1_12k_x4.onnx none clean "$objects" 180 runs/table2/key
-    done
-    python models/student/diagnose.py turn student:runs/student/gt6k_hpos1_12k_x4.onnx --episodes 60 \
-        > runs/table2/turn_gt6k_hpos1_12k.log 2>&1
+    wrist_measures gt6k_hpos1_12k
 }
 
-wrist() {  # docs/student.md "The wrist's turn": 1000 demos whose wrist starts anywhere in +-1.5 rad (the default +-0.05
-    # lets the wrist's angle tell a student which way the expert turns it), the best GT student fine-tuned 12000
-    # steps on them; clean cells, the wrist's turn at the close, and its turn on held-out demos by step
+wrist() {  # docs/student.md "The wrist's turn": 1000 demos whose wrist starts anywhere in +-1.5 rad (the default
+    # +-0.05 lets the wrist's angle tell a student which way the expert turns it), the best GT student fine-tuned
+    # 12000 steps on them; then the same from turn6k's --seen-turn student
     python -m trainer collect --episodes 1000 --objects seen --seed 50000 --wrist-noise 1.5 --workers 2 \
         --out runs/sim/demos_seen_wrist.zarr
     finetune wrist_hpos_12k runs/sim/demos_seen_wrist.zarr gt 2 --hand-pose --object-offset --hand-target \
         --seen-offset --steps 12000 --init runs/student/gt6k_hpos_more_12k/ckpt.pt
-    python -m export runs/student/wrist_hpos_12k/ckpt.pt --ddim-steps 4 --exec-horizon 4 \
-        --out runs/student/wrist_hpos_12k_x4.onnx
-    for objects in seen unseen; do
-        cell wrist_hpos_12k_x4 runs/student/wrist_hpos_12k_x4.onnx none clean "$objects" 180 runs/table2/key
-    done
-    python models/student/diagnose.py turn student:runs/student/wrist_hpos_12k_x4.onnx --episodes 60 \
-        > runs/table2/turn_wrist_hpos_12k.log 2>&1
-    python models/student/diagnose.py copycat runs/student/wrist_hpos_12k_x4.onnx \
-        --demos runs/student/heldout_60.zarr > runs/table2/copycat_wrist_hpos_12k.log 2>&1
+    wrist_measures wrist_hpos_12k
+    finetune wristturn_hpos_12k runs/sim/demos_seen_wrist.zarr gt 2 --hand-pose --object-offset --hand-target \
+        --seen-offset --seen-turn --steps 12000 --init runs/student/gt6k_hpost_12k/ckpt.pt
+    wrist_measures wristturn_hpos_12k
 }
 
 "${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist [NAME...]}"

@@ -96,6 +96,14 @@ def test_init_starts_a_new_run_from_another_students_weights(small_demos, tmp_pa
         fit_main([*fit_args(small_demos, tmp_path / "wide", 1), "--width", "16", "--init", str(gt)])
 
 
+def assert_same_function(before, after, batch) -> None:
+    """Two students give the same denoiser output on ``batch`` at a few diffusion steps."""
+    x, k = torch.randn(4, 16, 8, generator=torch.Generator().manual_seed(0)), torch.tensor([1, 30, 60, 99])
+    with torch.no_grad():
+        torch.testing.assert_close(after(x, k, after.encode(batch.depth, batch.state)),
+                                   before(x, k, before.encode(batch.depth, batch.state)), atol=1e-6, rtol=0)
+
+
 @pytest.mark.slow
 def test_init_adds_the_hand_pose_to_a_student_without_it(small_demos, tmp_path):
     """--hand-pose --init from a student without it starts as the same function (zero weights on the new
@@ -109,11 +117,8 @@ def test_init_adds_the_hand_pose_to_a_student_without_it(small_demos, tmp_path):
     data = DemoDataset(small_demos, "gt", 3, 16)
     start = warm_start(plain, replace(source.config, hand_pose=True), checkpoint.TrainingInfo(), data)
     before, after = source.policy().eval(), start.policy().eval()
-    batch = data.batch(np.arange(4))
-    x, k = torch.randn(4, 16, 8, generator=torch.Generator().manual_seed(0)), torch.tensor([1, 30, 60, 99])
+    assert_same_function(before, after, data.batch(np.arange(4)))
     with torch.no_grad():
-        torch.testing.assert_close(after(x, k, after.encode(batch.depth, batch.state)),
-                                   before(x, k, before.encode(batch.depth, batch.state)), atol=1e-6, rtol=0)
         hands = hand_pose(torch.from_numpy(data.state)).numpy()
     np.testing.assert_allclose(after.hand_norm.summary()["low"], hands.min(0), atol=1e-6)
     assert start.model["state_mlp.0.weight"].shape[1] == 8 + 9
@@ -239,10 +244,8 @@ def test_seen_turn_feeds_the_object_heads_yaw_reading_and_is_probed(small_demos,
                        data)
     before, after = source.policy().eval(), start.policy().eval()
     batch = data.batch(np.arange(4))
-    x, k = torch.randn(4, 16, 8, generator=torch.Generator().manual_seed(0)), torch.tensor([1, 30, 60, 99])
+    assert_same_function(before, after, batch)
     with torch.no_grad():
-        torch.testing.assert_close(after(x, k, after.encode(batch.depth, batch.state)),
-                                   before(x, k, before.encode(batch.depth, batch.state)), atol=1e-6, rtol=0)
         features = after.encoder(batch.depth)
         torch.testing.assert_close(after.object_head(features)[:, :5], before.object_head(features))
         torch.testing.assert_close(after.state_input(features, batch.state)[:, -2:],

@@ -85,10 +85,14 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     if hand:
         hand_err = np.linalg.norm(predicted[:, 2:5] - probed[steps, 2:5], axis=1) * 100
         result["hand_offset_err_cm"] = {"median": float(np.median(hand_err)), "mean": float(hand_err.mean())}
-    if turn:  # the angle between the two doubled-yaw directions, halved back
+    if turn:  # the angle between the doubled-yaw directions, halved back; by kind (round ones have no yaw)
         doubled = [np.arctan2(x[:, 6], x[:, 5]) for x in (predicted, probed[steps])]
         turn_err = np.degrees(np.abs(np.angle(np.exp(1j * (doubled[0] - doubled[1]))))) / 2
-        result["turn_err_deg"] = {"median": float(np.median(turn_err)), "mean": float(turn_err.mean())}
+        store = DemoStore.open(demos)
+        kinds = np.repeat([str(k) for k in store.root["meta/kind"][:]], store.episode_lengths)[steps]
+        result["turn_err_deg"] = {"median": float(np.median(turn_err)), "mean": float(turn_err.mean()),
+                                  "median_by_kind": {k: float(np.median(turn_err[kinds == k]))
+                                                     for k in sorted(set(kinds))}}
     return result
 
 
