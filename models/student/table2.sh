@@ -492,4 +492,17 @@ wrist() {  # docs/student.md "The wrist's turn": 1000 demos whose wrist starts a
     wrist_measures wristturn_hpos_12k
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist [NAME...]}"
+wrist6k() {  # next (docs/student.md "The wrist's turn"): `wrist`'s demos grown to 6000, all with the wrist started
+    # anywhere, and a --seen-turn student trained on them from scratch with `sixk`'s schedule, so that no proxy is there
+    # to learn; collect resumes a partial store
+    [ -d runs/sim/demos_seen_wrist6k.zarr ] || cp -r runs/sim/demos_seen_wrist.zarr runs/sim/demos_seen_wrist6k.zarr
+    python -m trainer collect --episodes 6000 --objects seen --seed 50000 --wrist-noise 1.5 --workers 2 \
+        --out runs/sim/demos_seen_wrist6k.zarr
+    fit wristturn6k_36k runs/sim/demos_seen_wrist6k.zarr gt 2 36000 --lr 3e-4 --hand-pose --object-offset \
+        --seen-offset --seen-turn
+    finetune wristturn6k_more_12k runs/sim/demos_seen_wrist6k.zarr gt 2 --hand-pose --object-offset --hand-target \
+        --seen-offset --seen-turn --steps 12000 --init runs/student/wristturn6k_36k/ckpt.pt
+    wrist_measures wristturn6k_more_12k
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k [NAME...]}"
