@@ -112,6 +112,8 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
         if args.action_noise < 0:
             raise ValueError(f"--action-noise must be >= 0, got {args.action_noise}")
+        if args.wrist_noise < 0:
+            raise ValueError(f"--wrist-noise must be >= 0, got {args.wrist_noise}")
         summary = collect(args)
     except (DatasetError, PolicyError, ObjectError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)

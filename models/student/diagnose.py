@@ -221,11 +221,11 @@ def copycat(policy_path: str, demos: str) -> None:
     for name, (lo, hi) in COPYCAT_STEPS.items():
         steps = [s + i for s in starts for i in range(lo, hi)]
         noise = [rng.standard_normal(policy.runtime.noise_shape, dtype=np.float32) for _ in steps]
-        turn = np.array([env_chunk(policy, data.depth_stack(i), data.state[i], n)[0, 6]
-                         for i, n in zip(steps, noise, strict=True)])
+        student = np.array([env_chunk(policy, data.depth_stack(i), data.state[i], n)[0, 6]
+                            for i, n in zip(steps, noise, strict=True)])
         expert, wrist = data.action[steps, 6], data.state[steps, 6] - HOME_Q[6]
         print(f"steps {name} ({len(steps)}): wrist turn vs the expert's, correlation "
-              f"{np.corrcoef(turn, expert)[0, 1]:.2f}; mean |turn| {np.abs(turn).mean():.2f} "
+              f"{np.corrcoef(student, expert)[0, 1]:.2f}; mean |turn| {np.abs(student).mean():.2f} "
               f"(expert {np.abs(expert).mean():.2f}); the expert's turn vs the wrist's angle off home, "
               f"correlation {np.corrcoef(wrist, expert)[0, 1]:.2f}", flush=True)
 

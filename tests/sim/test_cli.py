@@ -79,6 +79,20 @@ def test_dart_demos_record_their_noise_and_a_negative_one_is_refused(tmp_path, c
     assert "--action-noise must be >= 0" in capsys.readouterr().err
 
 
+def test_wide_wrist_demos_start_their_wrist_anywhere_in_the_range(tmp_path, capsys) -> None:
+    import json
+
+    from hil_sim.world import HOME_Q
+
+    args = ["--objects", "cube", "--workers", "1", "--no-depth", "--wrist-noise"]
+    assert collect_main(["--episodes", "4", "--out", str(tmp_path / "w.zarr"), *args, "1.5"]) == 0
+    store = DemoStore.open(tmp_path / "w.zarr")
+    wrists = [json.loads(str(r))["q0"][6] - HOME_Q[6] for r in store.root["meta/randomisation"][:]]
+    assert store.attrs["wrist_noise"] == 1.5 and max(np.abs(wrists)) <= 1.5 and max(np.abs(wrists)) > 0.05
+    assert collect_main(["--episodes", "1", "--out", str(tmp_path / "bad.zarr"), *args, "-1"]) == 2
+    assert "--wrist-noise must be >= 0" in capsys.readouterr().err
+
+
 def test_unwritable_output_is_one_error_line(tmp_path, capsys) -> None:
     blocker = tmp_path / "file"
     blocker.write_text("x")

@@ -55,7 +55,8 @@ class StudentConfig:
     """With ``hand_target``: the object head also reads, from depth, the object's yaw relative to the
     fingers' closing axis (cos and sin of twice it: a grasp turned by pi is the same grasp), and the state
     encoder reads that estimate; then part of the exported graph. The GT students close on elongated kinds
-    with the fingers 60 degrees off the expert's direction in their failed grasps (docs/student.md)."""
+    with the fingers ~50 degrees off the expert's direction in their failed grasps (docs/student.md "The
+    wrist's turn")."""
 
     def __post_init__(self) -> None:
         if self.seen_turn and not self.hand_target:
