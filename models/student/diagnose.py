@@ -9,6 +9,7 @@
                                                           [--sensor stereo]    # on what the sensor shows
     python models/student/diagnose.py parts scripted --checkpoint ckpt.pt --sensor stereo   # holes or values?
     python models/student/diagnose.py turn student:S.onnx --episodes 40     # the wrist's turn at the close
+                                                          [--sensor stereo]
     python models/student/diagnose.py copycat S.onnx --demos D.zarr   # its wrist turn on the demos, by step
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
@@ -186,11 +187,14 @@ class TurnTracker(Tracker):
         return super().act(obs)
 
 
-def turn(policy: str, episodes: int) -> None:
-    env, tracker = GraspEnv(EnvConfig(objects=KINDS)), TurnTracker(make_policy(policy))
+def turn(policy: str, episodes: int, sensor_spec: str) -> None:
+    from trainer.sim.sensors import make_sensor, reads_clean_depth
+
+    env = GraspEnv(EnvConfig(objects=KINDS, render_depth=reads_clean_depth(sensor_spec)))
+    tracker, sensor = TurnTracker(make_policy(policy)), make_sensor(sensor_spec)
     rows = {True: [], False: []}
     for job in [j for j in jobs(3 * episodes) if j.kind in ELONGATED][:episodes]:
-        won = run_episode(env, tracker, job).success
+        won = run_episode(env, tracker, job, sensor=sensor).success
         start, turned, aside = tracker.turns[0], tracker.turns[-1], np.linalg.norm(tracker.offsets[-1][:2])
         rows[won].append((start, turned, aside))
         print(f"seed {job.seed} {job.kind:7s} success {int(won)}: fingers {start:.0f} deg from the expert's "
@@ -320,7 +324,7 @@ def main() -> None:
     p.add_argument("--demos", help="copycat: the demo store whose frames and states the student is run on")
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--sensor", default="clean",
-                   help="locate, parts: the depth sensor the policy sees (as evaluate's: clean, stereo, ...)")
+                   help="locate, parts, turn: the sensor the policy sees (as evaluate's: clean, stereo, ...)")
     p.add_argument("--sigma", type=float, nargs="+", default=[0.0, 0.3], help="dart: action noise levels")
     args = p.parse_args()
     if args.what in ("locate", "parts") and not args.checkpoint:
@@ -334,7 +338,7 @@ def main() -> None:
     elif args.what == "descent":
         descent(args.policy, args.episodes)
     elif args.what == "turn":
-        turn(args.policy, args.episodes)
+        turn(args.policy, args.episodes, args.sensor)
     elif args.what == "copycat":
         copycat(args.policy, args.demos)
     elif args.what in ("locate", "parts"):
