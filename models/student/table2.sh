@@ -62,6 +62,10 @@ train() {
 }
 
 # name policy-file restore
+HPOS="--hand-pose --object-offset --hand-target --seen-offset"
+# the best recipe's inputs and targets (docs/student.md "3000 demos"): the hand's pose, the object's offset from it
+# as estimated and as read by the head, and the hand target; word-split on purpose where it is used
+
 STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "gt_inpaint runs/student/gt_1000_obj1.onnx inpaint"
           "ddg runs/student/ddg2_ft_8k.onnx none"
@@ -94,11 +98,11 @@ cell() {  # name model restore sensor objects episodes [folder]
         --episodes "$6" --workers "${WORKERS:-2}" --json "$json" > "${json%.json}.log" 2>&1
 }
 
-grow_demos() {  # from to episodes: a copy of a scripted demo store grown to more episodes; collect resumes a
-    # partial store where it stopped: seed 30000 + attempts so far (the 1000 demos are seeds 0..1001, then 31002..33006
-    # make 3000, 33007..36013 make 6000; meta/seed records each episode's)
+grow_demos() {  # from to episodes [seed [collect options...]]: a copy of a scripted demo store grown to more
+    # episodes; collect resumes a partial store where it stopped: seed (default 30000) + attempts so far (the 1000 demos
+    # are seeds 0..1001, then 31002..33006 make 3000, 33007..36013 make 6000; meta/seed records each episode's)
     [ -d "$2" ] || cp -r "$1" "$2"
-    python -m trainer collect --episodes "$3" --seed 30000 --workers 2 --out "$2"
+    python -m trainer collect --episodes "$3" --seed "${4:-30000}" --workers 2 --out "$2" "${@:5}"
 }
 
 demos_3k() {
@@ -341,8 +345,8 @@ sixk() {
     fit gt6k_hpos_36k runs/sim/demos_seen_6k.zarr gt 2 36000 --lr 3e-4 --hand-pose --object-offset --seen-offset
     measure gt6k_hpos_36k runs/sim/demos_seen_6k.zarr
     # then 12000 more steps (lr 1e-4), as moredata's fine-tunes, on 2 threads
-    finetune gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr gt 2 --hand-pose --object-offset --hand-target \
-        --seen-offset --steps 12000 --init runs/student/gt6k_hpos_36k/ckpt.pt
+    finetune gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr gt 2 $HPOS --steps 12000 \
+        --init runs/student/gt6k_hpos_36k/ckpt.pt
     measure gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr
 }
 
@@ -364,13 +368,12 @@ ddgb6k() {
     # steps) fine-tuned 8000 steps (lr 1e-4) on DDG (b)'s depth of the first 1000 of its demos (DDIM 5: 27 min on
     # 2 cores; all 6000 would take ~2.7 h), then its measures and its stereo cells beside the GT student's
     ddg_depth models/ddg_stereo runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_b.zarr
-    finetune ddgb6k_hpos_8k runs/sim/demos_seen_ddg_b.zarr ddg 2 --hand-pose --object-offset --hand-target \
-        --seen-offset --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    finetune ddgb6k_hpos_8k runs/sim/demos_seen_ddg_b.zarr ddg 2 $HPOS --init runs/student/gt6k_hpos_more_12k/ckpt.pt
     measure ddgb6k_hpos_8k runs/sim/demos_seen_ddg_b.zarr
     key ddgb6k_hpos_8k_x4
     # then 12000 more steps (lr 1e-4), as the GT students gained from more steps
-    finetune ddgb6k_hpos_more_12k runs/sim/demos_seen_ddg_b.zarr ddg 2 --hand-pose --object-offset --hand-target \
-        --seen-offset --steps 12000 --init runs/student/ddgb6k_hpos_8k/ckpt.pt
+    finetune ddgb6k_hpos_more_12k runs/sim/demos_seen_ddg_b.zarr ddg 2 $HPOS --steps 12000 \
+        --init runs/student/ddgb6k_hpos_8k/ckpt.pt
     measure ddgb6k_hpos_more_12k runs/sim/demos_seen_ddg_b.zarr
     key ddgb6k_hpos_more_12k_x4
 }
@@ -392,11 +395,11 @@ ddgb6k_all() {  # next: DDG (b)'s depth of all 6000 demos (~2.7 h on 2 cores), f
 fine_tunes() {  # prefix demos source threads [fit options...]: `ddgb6k`'s recipe, 8000 steps from the best GT
     # student ($START, default gt6k_hpos_more_12k), then 12000 more, then the exec-4 export
     # runs/student/PREFIX_hpos_more_12k_x4.onnx
-    local prefix=$1 demos=$2 source=$3 threads=$4 recipe="--hand-pose --object-offset --hand-target --seen-offset"
+    local prefix=$1 demos=$2 source=$3 threads=$4
     shift 4
-    finetune "${prefix}_hpos_8k" "$demos" "$source" "$threads" $recipe "$@" \
+    finetune "${prefix}_hpos_8k" "$demos" "$source" "$threads" $HPOS "$@" \
         --init "runs/student/${START:-gt6k_hpos_more_12k}/ckpt.pt"
-    finetune "${prefix}_hpos_more_12k" "$demos" "$source" "$threads" $recipe "$@" --steps 12000 \
+    finetune "${prefix}_hpos_more_12k" "$demos" "$source" "$threads" $HPOS "$@" --steps 12000 \
         --init "runs/student/${prefix}_hpos_8k/ckpt.pt"
     python -m export "runs/student/${prefix}_hpos_more_12k/ckpt.pt" --ddim-steps 4 --exec-horizon 4 \
         --out "runs/student/${prefix}_hpos_more_12k_x4.onnx"
@@ -467,15 +470,15 @@ wrist_measures() {  # name: the exec-4 export of runs/student/NAME, its clean ce
 
 turn6k() {  # docs/student.md "The wrist's turn": the best GT student given --seen-turn (the object head reads the
     # object's yaw from the fingers and the state encoder reads that), 12000 steps from it
-    finetune gt6k_hpost_12k runs/sim/demos_seen_6k.zarr gt 2 --hand-pose --object-offset --hand-target \
-        --seen-offset --seen-turn --steps 12000 --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    finetune gt6k_hpost_12k runs/sim/demos_seen_6k.zarr gt 2 $HPOS --seen-turn --steps 12000 \
+        --init runs/student/gt6k_hpos_more_12k/ckpt.pt
     wrist_measures gt6k_hpost_12k
 }
 
 onefr6k() {  # docs/student.md "The wrist's turn": the best GT student reading one depth frame instead of three
     # (--obs-horizon 1 --init folds the older frames' first-layer weights into it), 12000 steps
-    finetune gt6k_hpos1_12k runs/sim/demos_seen_6k.zarr gt 2 --hand-pose --object-offset --hand-target \
-        --seen-offset --obs-horizon 1 --steps 12000 --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    finetune gt6k_hpos1_12k runs/sim/demos_seen_6k.zarr gt 2 $HPOS --obs-horizon 1 --steps 12000 \
+        --init runs/student/gt6k_hpos_more_12k/ckpt.pt
     wrist_measures gt6k_hpos1_12k
 }
 
@@ -484,24 +487,23 @@ wrist() {  # docs/student.md "The wrist's turn": 1000 demos whose wrist starts a
     # 12000 steps on them; then the same from turn6k's --seen-turn student
     python -m trainer collect --episodes 1000 --objects seen --seed 50000 --wrist-noise 1.5 --workers 2 \
         --out runs/sim/demos_seen_wrist.zarr
-    finetune wrist_hpos_12k runs/sim/demos_seen_wrist.zarr gt 2 --hand-pose --object-offset --hand-target \
-        --seen-offset --steps 12000 --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    finetune wrist_hpos_12k runs/sim/demos_seen_wrist.zarr gt 2 $HPOS --steps 12000 \
+        --init runs/student/gt6k_hpos_more_12k/ckpt.pt
     wrist_measures wrist_hpos_12k
-    finetune wristturn_hpos_12k runs/sim/demos_seen_wrist.zarr gt 2 --hand-pose --object-offset --hand-target \
-        --seen-offset --seen-turn --steps 12000 --init runs/student/gt6k_hpost_12k/ckpt.pt
+    finetune wristturn_hpos_12k runs/sim/demos_seen_wrist.zarr gt 2 $HPOS --seen-turn --steps 12000 \
+        --init runs/student/gt6k_hpost_12k/ckpt.pt
     wrist_measures wristturn_hpos_12k
 }
 
 wrist6k() {  # next (docs/student.md "The wrist's turn"): `wrist`'s demos grown to 6000, all with the wrist started
     # anywhere, and a --seen-turn student trained on them from scratch with `sixk`'s schedule, so that no proxy is there
     # to learn; collect resumes a partial store
-    [ -d runs/sim/demos_seen_wrist6k.zarr ] || cp -r runs/sim/demos_seen_wrist.zarr runs/sim/demos_seen_wrist6k.zarr
-    python -m trainer collect --episodes 6000 --objects seen --seed 50000 --wrist-noise 1.5 --workers 2 \
-        --out runs/sim/demos_seen_wrist6k.zarr
+    grow_demos runs/sim/demos_seen_wrist.zarr runs/sim/demos_seen_wrist6k.zarr 6000 50000 --objects seen \
+        --wrist-noise 1.5
     fit wristturn6k_36k runs/sim/demos_seen_wrist6k.zarr gt 2 36000 --lr 3e-4 --hand-pose --object-offset \
         --seen-offset --seen-turn
-    finetune wristturn6k_more_12k runs/sim/demos_seen_wrist6k.zarr gt 2 --hand-pose --object-offset --hand-target \
-        --seen-offset --seen-turn --steps 12000 --init runs/student/wristturn6k_36k/ckpt.pt
+    finetune wristturn6k_more_12k runs/sim/demos_seen_wrist6k.zarr gt 2 $HPOS --seen-turn --steps 12000 \
+        --init runs/student/wristturn6k_36k/ckpt.pt
     wrist_measures wristturn6k_more_12k
 }
 

@@ -69,7 +69,8 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
         raise DemoDataError(f"{ckpt_path} records no training demos (an untrained checkpoint?)")
     hand, turn = ckpt.config.hand_target, ckpt.config.seen_turn
     trained_on = training_targets(ckpt.info.data, hand, turn)
-    probed = privileged_targets(DemoStore.open(demos), hand, turn=turn)
+    store = DemoStore.open(demos)
+    probed = privileged_targets(store, hand, turn=turn)
     if trained_on is None or probed is None:
         raise DemoDataError("object positions are not recorded in the training or the probed demos")
     data = DemoDataset(demos, depth_source, ckpt.config.obs_horizon, ckpt.config.action_horizon)
@@ -88,7 +89,6 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     if turn:  # the angle between the doubled-yaw directions, halved back; by kind (round ones have no yaw)
         doubled = [np.arctan2(x[:, 6], x[:, 5]) for x in (predicted, probed[steps])]
         turn_err = np.degrees(np.abs(np.angle(np.exp(1j * (doubled[0] - doubled[1]))))) / 2
-        store = DemoStore.open(demos)
         kinds = np.repeat([str(k) for k in store.root["meta/kind"][:]], store.episode_lengths)[steps]
         result["turn_err_deg"] = {"median": float(np.median(turn_err)), "mean": float(turn_err.mean()),
                                   "median_by_kind": {k: float(np.median(turn_err[kinds == k]))
@@ -97,7 +97,7 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
 
 
 def env_chunk(policy: StudentOnnxPolicy, stack: np.ndarray, state: np.ndarray,
-               noise: np.ndarray) -> np.ndarray:
+              noise: np.ndarray) -> np.ndarray:
     chunk = policy.runtime(stack, state, noise)
     return to_env_actions(chunk[: policy.meta.exec_horizon], policy.meta.action_scale)
 
