@@ -507,4 +507,12 @@ wrist6k() {  # next (docs/student.md "The wrist's turn"): `wrist`'s demos grown 
     wrist_measures wristturn6k_more_12k
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k [NAME...]}"
+keyframe() {  # docs/student.md "The wrist's turn": the best GT student fine-tuned 12000 steps with the steps where
+    # the expert's action changes (which way to turn, when to close) drawn more often (--keyframe-weight 10: the
+    # first two steps of an episode make 8 % of the draws instead of 3 %)
+    finetune gt6k_hpokf_12k runs/sim/demos_seen_6k.zarr gt 2 $HPOS --keyframe-weight 10 --steps 12000 \
+        --init runs/student/gt6k_hpos_more_12k/ckpt.pt
+    wrist_measures gt6k_hpokf_12k
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|keyframe [NAME...]}"

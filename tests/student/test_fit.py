@@ -17,7 +17,7 @@ from runtime.preprocess import DepthSpec
 from tests.conftest import write_synthetic_demos
 from trainer.student import checkpoint
 from trainer.student.data import DemoDataset, column_scale
-from trainer.student.train import DenoisingLoss, FitError, warm_start
+from trainer.student.train import DenoisingLoss, FitError, step_sampler, warm_start
 from trainer.student.train import main as fit_main
 
 # A reduced policy resolution keeps these runs to seconds; the model takes any H x W.
@@ -382,3 +382,21 @@ def _fitted(demos, tmp_path):
     path = tmp_path / "one" / "ckpt.pt"
     assert fit_main(fit_args(demos, path.parent, 1)) == 0
     return path
+
+
+def test_keyframe_weight_draws_the_steps_where_the_expert_changes_its_action(small_demos, tmp_path):
+    data = DemoDataset(small_demos, "gt", 3, 16)
+    weights = data.keyframe_weights(10.0)
+    for i in (0, 5, 12, 13):  # 0 and 12 start the two episodes: their change is from rest
+        before = np.zeros(8) if i in (0, 12) else data.action[i - 1]
+        assert weights[i] == pytest.approx(1 + 10 * np.abs(data.action[i] - before).max())
+    assert weights.min() >= 1 and weights.max() > weights.min()
+    drawn = step_sampler(data, 10.0)(np.random.default_rng(0), 200_000)
+    share = np.bincount(drawn, minlength=len(data)) / len(drawn)
+    np.testing.assert_allclose(share, weights / weights.sum(), atol=3e-3)
+    uniform = step_sampler(data, 0.0)(np.random.default_rng(1), 5)  # the stream runs without it always drew
+    np.testing.assert_array_equal(uniform, np.random.default_rng(1).integers(0, len(data), 5))
+    with pytest.raises(FitError, match="--keyframe-weight must be >= 0"):
+        fit_main([*fit_args(small_demos, tmp_path / "run", 1), "--keyframe-weight", "-1"])
+    assert fit_main([*fit_args(small_demos, tmp_path / "run", 2), "--keyframe-weight", "10"]) == 0
+    assert checkpoint.load(tmp_path / "run" / "ckpt.pt").step == 2

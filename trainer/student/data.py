@@ -120,6 +120,15 @@ class DemoDataset:
         return Batch(torch.from_numpy(depth), torch.from_numpy(self.state[indices]), torch.from_numpy(action),
                      targets)
 
+    def keyframe_weights(self, weight: float) -> np.ndarray:
+        """Per step, 1 + ``weight`` x how far the expert's action moved from the previous step's (largest
+        joint, actions in [-1, 1]; at an episode's start from rest, zero): the error of a copycat that
+        repeats its last action, large where the expert decides something (which way to turn, when to
+        close) and small where the history alone predicts it (Wen et al. 2021, keyframe-focused imitation)."""
+        previous = np.roll(self.action, 1, axis=0)
+        previous[self._start == np.arange(len(self))] = 0
+        return 1 + weight * np.abs(self.action - previous).max(axis=1)
+
     def fingerprint(self) -> dict:
         """Identifies the training data in the policy file's metadata."""
         h = hashlib.sha256()

@@ -13,6 +13,7 @@ import os
 import resource
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -66,6 +67,10 @@ class FitConfig:
     """A second demo store whose frames train only the object head (with weight ``object_loss``), never the
     actions: e.g. recovery demos (`trainer collect --teacher takeover:S.onnx`), whose frames show the hand
     where a student puts it and the expert never does. Half a batch of them is drawn per step."""
+    keyframe_weight: float = 0.0
+    """Draw steps where the expert's action changes more often than the others: step i with probability
+    proportional to 1 + this x the change (``DemoDataset.keyframe_weights``), so the few steps that decide
+    a turn are not drowned by the many a copy of the last action explains. 0 = every step alike."""
     ema_max: float = 0.9999
     """Ceiling of the EMA decay; the decay ramps up as 1 - (1 + step)^-0.75 (diffusion_policy)."""
     ckpt_every: int = 500
@@ -82,6 +87,8 @@ class FitConfig:
             raise FitError(f"--depth-source {self.depth_source!r}: choose one of {sorted(DEPTH_ARRAYS)}")
         if self.episodes < 0:
             raise FitError(f"--episodes must be >= 0 (0 = all), got {self.episodes}")
+        if self.keyframe_weight < 0:
+            raise FitError(f"--keyframe-weight must be >= 0 (0 = uniform), got {self.keyframe_weight}")
         for name in ("steps", "batch", "ckpt_every"):
             if getattr(self, name) < 1:
                 raise FitError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
@@ -130,6 +137,14 @@ def object_frames(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset) -
     if extra.targets is None:
         raise FitError(f"{cfg.object_demos} does not record object_xy for every episode")
     return extra
+
+
+def step_sampler(data: DemoDataset, keyframe_weight: float) -> Callable[..., np.ndarray]:
+    """(rng, n) -> n step indices of ``data``: uniform, or drawn by ``DemoDataset.keyframe_weights``."""
+    if not keyframe_weight:
+        return lambda rng, n: rng.integers(0, len(data), n)
+    cumulative = np.cumsum(data.keyframe_weights(keyframe_weight))
+    return lambda rng, n: np.searchsorted(cumulative, rng.random(n) * cumulative[-1], side="right")
 
 
 def ema_update(ema: dict[str, torch.Tensor], model: nn.Module, step: int, ema_max: float) -> None:
@@ -284,11 +299,12 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
     rng, gen = np.random.default_rng(seed), torch.Generator().manual_seed(seed)
     start, started = ckpt.step, time.perf_counter()
     extra_batch = max(1, cfg.batch // world // 2)
+    draw = step_sampler(data, cfg.keyframe_weight)
     bar = tqdm(range(start, cfg.steps), initial=start, total=cfg.steps, disable=rank != 0, desc="student fit")
     for step in bar:
         for group in optim.param_groups:
             group["lr"] = cfg.lr * lr_factor(step, cfg)
-        batch = data.batch(rng.integers(0, len(data), cfg.batch // world), rng)
+        batch = data.batch(draw(rng, cfg.batch // world), rng)
         seen_only = None if extra is None else extra.batch(rng.integers(0, len(extra), extra_batch), rng)
         loss, denoising = trainable(batch, gen, seen_only)
         optim.zero_grad(set_to_none=True)
