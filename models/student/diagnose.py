@@ -11,6 +11,7 @@
     python models/student/diagnose.py turn student:S.onnx --episodes 40     # the wrist's turn at the close
                                                           [--sensor stereo]
     python models/student/diagnose.py copycat S.onnx --demos D.zarr   # its wrist turn on the demos, by step
+                                              [--checkpoint ckpt.pt]  # a --seen-turn student's yaw reading
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
 look like; ``spread`` regresses a policy's closing offset (object minus grasp site when it first closes the
@@ -26,8 +27,10 @@ succeed and those that fail, how far the fingers' closing axis is turned from th
 the first close (degrees, modulo 180) and how far the object is from the grasp site then. ``copycat`` runs
 a student file on the demos' own frames and states (the elongated kinds, the first steps of each episode) and
 correlates its wrist-turn action (joint 7, the first of each chunk) with the expert's, by step in the episode,
-beside how well the wrist's angle off home alone predicts the expert's turn: at step 0 neither the wrist's
-angle nor the frame history says which way the expert turns, only the object's yaw in the image does.
+beside how well the wrist's angle off home alone predicts the expert's turn, and how well the object's yaw
+from the fingers does: at step 0 neither the wrist's angle nor the frame history says which way the expert
+turns, only the object's yaw in the image does. With a ``--seen-turn`` student's ``--checkpoint`` it also
+says how far its object head's yaw reading is off at those steps, and how much weight the policy puts on it.
 """
 
 from __future__ import annotations
@@ -211,16 +214,50 @@ COPYCAT_STEPS = {"0-1": (0, 2), "2-5": (2, 6), "6-11": (6, 12), "12-29": (12, 30
 """copycat: steps of each episode, from its start."""
 
 
-def copycat(policy_path: str, demos: str) -> None:
+class YawReading:
+    """A ``--seen-turn`` student checkpoint's object head, read as the object's yaw from the fingers."""
+
+    def __init__(self, ckpt_path: str) -> None:
+        from trainer.student import checkpoint
+        from trainer.student.data import column_scale, training_targets
+
+        self.ckpt = checkpoint.load(Path(ckpt_path))
+        if not self.ckpt.config.seen_turn:
+            raise SystemExit(f"{ckpt_path}: not a --seen-turn student, its object head reads no yaw")
+        self.net = self.ckpt.policy().eval()
+        mean, std = column_scale(training_targets(self.ckpt.info.data, True, True))
+        self.mean, self.std = mean[5:7], std[5:7]
+
+    def off_deg(self, stacks: np.ndarray, truth: np.ndarray) -> np.ndarray:
+        """Per frame stack: how far the reading lies from ``truth`` (cos, sin of twice the yaw), degrees."""
+        import torch
+
+        with torch.no_grad():
+            guess = self.net.object_head(self.net.encoder(torch.from_numpy(stacks))).numpy()[:, 5:7]
+        guess = guess * self.std + self.mean
+        doubled = np.arctan2(guess[:, 1], guess[:, 0]) - np.arctan2(truth[:, 1], truth[:, 0])
+        return np.degrees(np.abs(np.angle(np.exp(1j * doubled)))) / 2
+
+    def weights(self) -> str:
+        """Whether the policy uses the reading: the state MLP's first-layer weights on its last inputs."""
+        w = np.abs(self.net.state_mlp[0].weight.detach().numpy()).mean(axis=0)
+        return f"the state MLP's first layer, mean |weight|: {w[-2:].mean():.3f} on the yaw reading, " \
+               f"{w[:-2].mean():.3f} on its other inputs"
+
+
+def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
     from trainer.dataset import DemoStore
-    from trainer.student.data import DemoDataset
+    from trainer.student.data import DemoDataset, privileged_targets
     from trainer.student.onnx_policy import StudentOnnxPolicy
     from trainer.student.probe import env_chunk
 
     policy = StudentOnnxPolicy(policy_path)
     data = DemoDataset(demos, "gt", policy.meta.obs_horizon, policy.meta.action_horizon)
-    kinds = [str(k) for k in DemoStore.open(demos).root["meta/kind"][:]]
+    store = DemoStore.open(demos)
+    kinds = [str(k) for k in store.root["meta/kind"][:]]
     starts = [int(s) for s, k in zip(np.r_[0, data.ends[:-1]], kinds, strict=True) if k in ELONGATED]
+    doubled_yaw = privileged_targets(store, True, len(data), True)[:, 5:7]
+    reading = None if ckpt_path is None else YawReading(ckpt_path)
     rng = np.random.default_rng(0)
     for name, (lo, hi) in COPYCAT_STEPS.items():
         steps = [s + i for s in starts for i in range(lo, hi)]
@@ -228,10 +265,18 @@ def copycat(policy_path: str, demos: str) -> None:
         student = np.array([env_chunk(policy, data.depth_stack(i), data.state[i], n)[0, 6]
                             for i, n in zip(steps, noise, strict=True)])
         expert, wrist = data.action[steps, 6], data.state[steps, 6] - HOME_Q[6]
-        print(f"steps {name} ({len(steps)}): wrist turn vs the expert's, correlation "
-              f"{np.corrcoef(student, expert)[0, 1]:.2f}; mean |turn| {np.abs(student).mean():.2f} "
-              f"(expert {np.abs(expert).mean():.2f}); the expert's turn vs the wrist's angle off home, "
-              f"correlation {np.corrcoef(wrist, expert)[0, 1]:.2f}", flush=True)
+        line = (f"steps {name} ({len(steps)}): wrist turn vs the expert's, correlation "
+                f"{np.corrcoef(student, expert)[0, 1]:.2f}; mean |turn| {np.abs(student).mean():.2f} "
+                f"(expert {np.abs(expert).mean():.2f}); the expert's turn vs the wrist's angle off home, "
+                f"correlation {np.corrcoef(wrist, expert)[0, 1]:.2f}, vs sin(2 x the object's yaw from the "
+                f"fingers) {np.corrcoef(doubled_yaw[steps, 1], expert)[0, 1]:.2f}")
+        if reading is not None:
+            off = reading.off_deg(np.stack([data.depth_stack(i) for i in steps]), doubled_yaw[steps])
+            line += f"; the head reads that yaw off by median {np.median(off):.0f} deg (p90 " \
+                    f"{np.percentile(off, 90):.0f})"
+        print(line, flush=True)
+    if reading is not None:
+        print(reading.weights(), flush=True)
 
 
 class ObjectEstimate:
@@ -320,7 +365,8 @@ def main() -> None:
                                     "copycat"])
     p.add_argument("policy", nargs="?", default="scripted",
                    help="a trainer policy spec (spread, descent, locate, parts, turn)")
-    p.add_argument("--checkpoint", help="locate, parts: the student checkpoint whose object head is measured")
+    p.add_argument("--checkpoint", help="locate, parts: the student checkpoint whose object head is "
+                   "measured; copycat: a --seen-turn student's, how well it reads the yaw and if it uses it")
     p.add_argument("--demos", help="copycat: the demo store whose frames and states the student is run on")
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--sensor", default="clean",
@@ -340,7 +386,7 @@ def main() -> None:
     elif args.what == "turn":
         turn(args.policy, args.episodes, args.sensor)
     elif args.what == "copycat":
-        copycat(args.policy, args.demos)
+        copycat(args.policy, args.demos, args.checkpoint)
     elif args.what in ("locate", "parts"):
         (locate if args.what == "locate" else parts)(args.policy, args.checkpoint, args.episodes, args.sensor)
     else:
