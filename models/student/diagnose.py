@@ -29,7 +29,8 @@ a student file on the demos' own frames and states (the elongated kinds, the fir
 correlates its wrist-turn action (joint 7, the first of each chunk) with the expert's, by step in the episode,
 beside how well the wrist's angle off home alone predicts the expert's turn, and how well the object's yaw
 from the fingers does: at step 0 neither the wrist's angle nor the frame history says which way the expert
-turns, only the object's yaw in the image does. With a ``--seen-turn`` student's ``--checkpoint`` it also
+turns, only the object's yaw in the image does. With a ``--seen-turn`` or ``--seen-yaw`` student's
+``--checkpoint`` it also
 says how far its object head's yaw reading is off at those steps, and how much weight the policy puts on it.
 """
 
@@ -215,26 +216,31 @@ COPYCAT_STEPS = {"0-1": (0, 2), "2-5": (2, 6), "6-11": (6, 12), "12-29": (12, 30
 
 
 class YawReading:
-    """A ``--seen-turn`` student checkpoint's object head, read as the object's yaw from the fingers."""
+    """A ``--seen-turn`` or ``--seen-yaw`` student checkpoint's object head, read as the object's yaw from the
+    fingers (``--seen-yaw``: as its state MLP reads it, turned into the fingers' frame)."""
 
     def __init__(self, ckpt_path: str) -> None:
         from trainer.student import checkpoint
         from trainer.student.data import column_scale, training_targets
 
         self.ckpt = checkpoint.load(Path(ckpt_path))
-        if not self.ckpt.config.seen_turn:
-            raise SystemExit(f"{ckpt_path}: not a --seen-turn student, its object head reads no yaw")
+        if not self.ckpt.config.yaw_target:
+            raise SystemExit(f"{ckpt_path}: neither --seen-turn nor --seen-yaw, its object head reads no yaw")
         self.net = self.ckpt.policy().eval()
-        mean, std = column_scale(training_targets(self.ckpt.info.data, True, True))
+        mean, std = column_scale(training_targets(self.ckpt.info.data, True, self.ckpt.config.yaw_target))
         self.mean, self.std = mean[5:7], std[5:7]
 
-    def off_deg(self, stacks: np.ndarray, truth: np.ndarray) -> np.ndarray:
-        """Per frame stack: how far the reading lies from ``truth`` (cos, sin of twice the yaw), degrees."""
+    def off_deg(self, stacks: np.ndarray, states: np.ndarray, truth: np.ndarray) -> np.ndarray:
+        """Per frame stack and state: how far the reading lies from ``truth`` (cos, sin of twice the yaw from
+        the fingers), degrees."""
         import torch
 
         with torch.no_grad():
-            guess = self.net.object_head(self.net.encoder(torch.from_numpy(stacks))).numpy()[:, 5:7]
-        guess = guess * self.std + self.mean
+            features = self.net.encoder(torch.from_numpy(stacks))
+            if self.ckpt.config.seen_yaw:
+                guess = self.net.state_input(features, torch.from_numpy(states))[:, -2:].numpy()
+            else:
+                guess = self.net.object_head(features).numpy()[:, 5:7] * self.std + self.mean
         doubled = np.arctan2(guess[:, 1], guess[:, 0]) - np.arctan2(truth[:, 1], truth[:, 0])
         return np.degrees(np.abs(np.angle(np.exp(1j * doubled)))) / 2
 
@@ -256,7 +262,7 @@ def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
     store = DemoStore.open(demos)
     kinds = [str(k) for k in store.root["meta/kind"][:]]
     starts = [int(s) for s, k in zip(np.r_[0, data.ends[:-1]], kinds, strict=True) if k in ELONGATED]
-    doubled_yaw = privileged_targets(store, True, len(data), True)[:, 5:7]
+    doubled_yaw = privileged_targets(store, True, len(data), "fingers")[:, 5:7]
     reading = None if ckpt_path is None else YawReading(ckpt_path)
     rng = np.random.default_rng(0)
     for name, (lo, hi) in COPYCAT_STEPS.items():
@@ -271,7 +277,8 @@ def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
                 f"correlation {np.corrcoef(wrist, expert)[0, 1]:.2f}, vs sin(2 x the object's yaw from the "
                 f"fingers) {np.corrcoef(doubled_yaw[steps, 1], expert)[0, 1]:.2f}")
         if reading is not None:
-            off = reading.off_deg(np.stack([data.depth_stack(i) for i in steps]), doubled_yaw[steps])
+            off = reading.off_deg(np.stack([data.depth_stack(i) for i in steps]), data.state[steps],
+                                  doubled_yaw[steps])
             line += f"; the head reads that yaw off by median {np.median(off):.0f} deg (p90 " \
                     f"{np.percentile(off, 90):.0f})"
         print(line, flush=True)
@@ -366,7 +373,7 @@ def main() -> None:
     p.add_argument("policy", nargs="?", default="scripted",
                    help="a trainer policy spec (spread, descent, locate, parts, turn)")
     p.add_argument("--checkpoint", help="locate, parts: the student checkpoint whose object head is "
-                   "measured; copycat: a --seen-turn student's, how well it reads the yaw and if it uses it")
+                   "measured; copycat: a yaw-reading student's, how well it reads the yaw and if it uses it")
     p.add_argument("--demos", help="copycat: the demo store whose frames and states the student is run on")
     p.add_argument("--episodes", type=int, default=30)
     p.add_argument("--sensor", default="clean",

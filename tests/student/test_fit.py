@@ -210,7 +210,7 @@ def test_turn_target_is_the_objects_yaw_from_the_fingers_doubled(small_demos):
     from trainer.student.data import privileged_targets
 
     store = DemoStore.open(small_demos)
-    targets = privileged_targets(store, hand_target=True, turn=True)
+    targets = privileged_targets(store, hand_target=True, turn="fingers")
     assert targets.shape[1] == 7
     np.testing.assert_array_equal(targets[:, :5], privileged_targets(store, hand_target=True))
     state = np.asarray(store.root["data/state"][:])
@@ -227,6 +227,41 @@ def test_turn_target_is_the_objects_yaw_from_the_fingers_doubled(small_demos):
         world.close()
 
 
+def test_seen_yaw_turns_the_heads_table_yaw_into_the_fingers_frame(small_demos, tmp_path):
+    """--seen-yaw: the head learns the object's yaw on the table; the state MLP reads it turned into the
+    fingers' frame by the in-graph hand pose, which on the true yaw gives --seen-turn's target."""
+    from trainer.dataset import DemoStore
+    from trainer.student.config import StudentConfigError
+    from trainer.student.data import privileged_targets
+    from trainer.student.model import hand_pose, into_fingers
+
+    store = DemoStore.open(small_demos)
+    table, fingers = (privileged_targets(store, True, turn=kind) for kind in ("table", "fingers"))
+    yaws = [json.loads(str(r))["object_yaw"] for r in store.root["meta/randomisation"][:]]
+    np.testing.assert_allclose(table[:, 5], np.cos(2 * np.repeat(yaws, 12)), atol=1e-6)
+    state = torch.from_numpy(np.asarray(store.root["data/state"][:], dtype=np.float32))
+    turned = into_fingers(torch.from_numpy(table[:, 5:7]), hand_pose(state)).numpy()
+    np.testing.assert_allclose(turned, fingers[:, 5:7], atol=3e-3)  # float32 FK in the graph: ~0.1 degree
+    out = tmp_path / "yaw"
+    assert fit_main([*fit_args(small_demos, out, 1), "--hand-target", "--hand-pose", "--seen-yaw"]) == 0
+    net = checkpoint.load(out / "ckpt.pt").policy().eval()
+    batch = DemoDataset(small_demos, "gt", 3, 16, hand_target=True, turn="table").batch(np.arange(4))
+    with torch.no_grad():
+        features = net.encoder(batch.depth)
+        read = net.yaw_norm.unnormalise(net.object_head(features)[:, 5:7])
+        torch.testing.assert_close(net.state_input(features, batch.state)[:, -2:],
+                                   into_fingers(read, hand_pose(batch.state)))
+    mean, std = column_scale(table[:, 5:7])
+    torch.testing.assert_close(net.yaw_norm.unnormalise(torch.zeros(1, 2)), torch.from_numpy(mean)[None])
+    torch.testing.assert_close(net.yaw_norm.half_range, torch.from_numpy(std))
+    assert net.state_mlp[0].in_features == 8 + 9 + 2 and net.object_head.out_features == 7
+    with pytest.raises(StudentConfigError, match="choose one"):
+        fit_main([*fit_args(small_demos, tmp_path / "both", 1), "--hand-target", "--hand-pose", "--seen-yaw",
+                  "--seen-turn"])
+    with pytest.raises(StudentConfigError, match="hand_pose"):
+        fit_main([*fit_args(small_demos, tmp_path / "handless", 1), "--hand-target", "--seen-yaw"])
+
+
 def test_seen_turn_feeds_the_object_heads_yaw_reading_and_is_probed(small_demos, tmp_path):
     """--seen-turn widens the object head to 7 outputs, its outputs 5:7 enter the state MLP last, and probe
     reports the yaw error in degrees; from a --seen-offset student it starts as the same function."""
@@ -239,7 +274,7 @@ def test_seen_turn_feeds_the_object_heads_yaw_reading_and_is_probed(small_demos,
     common = ["--hand-target", "--hand-pose", "--seen-offset"]
     assert fit_main([*fit_args(small_demos, offset, 1), *common]) == 0
     source = checkpoint.load(offset / "ckpt.pt")
-    data = DemoDataset(small_demos, "gt", 3, 16, hand_target=True, turn=True)
+    data = DemoDataset(small_demos, "gt", 3, 16, hand_target=True, turn="fingers")
     start = warm_start(offset / "ckpt.pt", replace(source.config, seen_turn=True), checkpoint.TrainingInfo(),
                        data)
     before, after = source.policy().eval(), start.policy().eval()

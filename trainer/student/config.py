@@ -58,7 +58,24 @@ class StudentConfig:
     with the fingers ~50 degrees off the expert's direction in their failed grasps (docs/student.md "The
     wrist's turn")."""
 
+    seen_yaw: bool = False
+    """With ``hand_target`` and ``hand_pose``: the object head also reads, from depth, the object's yaw on the
+    table (cos and sin of twice it), and the state encoder reads that estimate turned into the fingers'
+    frame by the hand pose: the yaw from the fingers that ``seen_turn`` asks of the head itself, which depth
+    cannot show where the fingers are out of view and the wrist may start anywhere (``trainer collect
+    --wrist-noise``). Then part of the exported graph."""
+
+    @property
+    def yaw_target(self) -> str:
+        """The object head's yaw output: "fingers" (``seen_turn``), "table" (``seen_yaw``) or none ("")."""
+        return "fingers" if self.seen_turn else "table" if self.seen_yaw else ""
+
     def __post_init__(self) -> None:
+        if self.seen_turn and self.seen_yaw:
+            raise StudentConfigError("seen_turn and seen_yaw are two ways to read the yaw: choose one")
+        if self.seen_yaw and not (self.hand_target and self.hand_pose):
+            raise StudentConfigError("seen_yaw needs hand_target (the head's outputs before the yaw) and "
+                                     "hand_pose (the fingers' axis it is turned into)")
         if self.seen_turn and not self.hand_target:
             raise StudentConfigError("seen_turn needs hand_target (the head's hand-relative outputs)")
         if self.seen_offset and not self.hand_target:

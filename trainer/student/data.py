@@ -61,7 +61,7 @@ class DemoDataset:
 
     def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int,
                  hand_target: bool = False, target_reference: np.ndarray | None = None,
-                 episodes: int = 0, turn: bool = False) -> None:
+                 episodes: int = 0, turn: str = "") -> None:
         """``target_reference``: the privileged targets whose mean and std standardise this store's (default:
         its own); a store that only trains the object head is standardised like the training demos.
         ``episodes``: only the store's first this many (0 = all). ``hand_target``, ``turn``: the privileged
@@ -176,12 +176,13 @@ def _per_step(store: DemoStore, key: str, width: int) -> np.ndarray | None:
 
 
 def privileged_targets(store: DemoStore, hand_target: bool, steps: int | None = None,
-                       turn: bool = False) -> np.ndarray | None:
+                       turn: str = "") -> np.ndarray | None:
     """Per step [N, 2], metres: the object's table position (``object_positions``); with ``hand_target``
     [N, 5]: then the hand relative to it, from the recorded joint state by forward kinematics (object minus
     grasp site in x and y, and the grasp site's height above the table), which decides where to move and
-    when to close; with ``turn`` (and ``hand_target``) [N, 7]: then the object's placed yaw relative to the
-    fingers' closing axis, as cos and sin of twice the angle (a grasp turned by pi is the same grasp). None
+    when to close; with ``turn`` (and ``hand_target``) [N, 7]: then the object's placed yaw, "table" as it
+    lies or "fingers" relative to the fingers' closing axis, as cos and sin of twice the angle (a grasp
+    turned by pi is the same grasp). None
     if an episode does not record the object's position. ``steps``: the first this many steps only."""
     placed = object_positions(store)
     if placed is None:
@@ -197,14 +198,15 @@ def privileged_targets(store: DemoStore, hand_target: bool, steps: int | None = 
     if turn:
         yaw = _per_step(store, "object_yaw", 1)
         if yaw is None:
-            raise DemoDataError("an episode of the demos records no object_yaw, which seen_turn learns")
-        fingers = np.array([np.arctan2(rot[1, 1], rot[0, 1]) for _, rot in sites])  # the closing axis (y)
-        relative = 2 * (yaw[: len(placed), 0] - fingers)
-        columns += [np.cos(relative), np.sin(relative)]
+            raise DemoDataError(f"an episode of the demos records no object_yaw, which the {turn} yaw learns")
+        doubled = 2 * yaw[: len(placed), 0]
+        if turn == "fingers":
+            doubled -= 2 * np.array([np.arctan2(rot[1, 1], rot[0, 1]) for _, rot in sites])  # closing axis: y
+        columns += [np.cos(doubled), np.sin(doubled)]
     return np.column_stack(columns).astype(np.float32)
 
 
-def training_targets(data: dict, hand_target: bool, turn: bool = False) -> np.ndarray | None:
+def training_targets(data: dict, hand_target: bool, turn: str = "") -> np.ndarray | None:
     """``privileged_targets`` of the demos a checkpoint was trained on (its ``info.data`` fingerprint): the
     reference its object head's units are standardised over."""
     return privileged_targets(DemoStore.open(data["demos"]), hand_target, data.get("steps"), turn)

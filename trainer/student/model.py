@@ -160,15 +160,25 @@ HAND_FEATURES = 9
 
 def state_inputs(config: StudentConfig) -> int:
     """Width of the state MLP's input: the state, the hand pose (9) and the object's offset from it (2 for
-    each of ``object_offset`` and ``seen_offset``, and the yaw reading of ``seen_turn``)."""
-    readings = config.object_offset + config.seen_offset + config.seen_turn
+    each of ``object_offset`` and ``seen_offset``, and the yaw reading of ``seen_turn`` or ``seen_yaw``)."""
+    readings = config.object_offset + config.seen_offset + bool(config.yaw_target)
     return config.state_dim + HAND_FEATURES * config.hand_pose + 2 * readings
 
 
 def object_outputs(config: StudentConfig) -> int:
     """Outputs of the object head: the object's table position (2), then with ``hand_target`` the hand
-    relative to it (3), then with ``seen_turn`` the object's yaw relative to the fingers (2)."""
-    return 2 + 3 * config.hand_target + 2 * config.seen_turn
+    relative to it (3), then with ``seen_turn`` or ``seen_yaw`` the object's yaw (2: ``yaw_target``)."""
+    return 2 + 3 * config.hand_target + 2 * bool(config.yaw_target)
+
+
+def into_fingers(doubled_yaw: torch.Tensor, hand: torch.Tensor) -> torch.Tensor:
+    """(cos, sin) of twice the object's yaw on the table [B, 2] -> of twice its yaw from the fingers'
+    closing axis, the hand frame's second axis (``hand_pose`` [B, 9], features 6:9), by the identities of an
+    angle difference: no atan2 in the exported graph."""
+    axis = hand[:, 6:8] / hand[:, 6:8].norm(dim=-1, keepdim=True).clamp_min(1e-6)
+    cos_f, sin_f = axis[:, 0] ** 2 - axis[:, 1] ** 2, 2 * axis[:, 0] * axis[:, 1]  # twice the fingers' yaw
+    cos_o, sin_o = doubled_yaw[:, 0], doubled_yaw[:, 1]
+    return torch.stack([cos_o * cos_f + sin_o * sin_f, sin_o * cos_f - cos_o * sin_f], dim=-1)
 
 
 def hand_pose(state: torch.Tensor) -> torch.Tensor:
@@ -194,6 +204,8 @@ class StudentPolicy(nn.Module):
         """The object head's units (standardised table position) -> metres: centre = mean, half_range = std
         of the training demos' object positions, as ``trainer.student.data.standardise``."""
         self.offset_norm = RangeNormaliser(2) if config.object_offset else None
+        self.yaw_norm = RangeNormaliser(2) if config.seen_yaw else None
+        """``seen_yaw``: the object head's yaw units -> cos and sin of twice the yaw, as ``object_norm``."""
         self.encoder = ResNet18(config.obs_horizon, config.width, config.keypoints)
         self.state_mlp = nn.Sequential(nn.Linear(state_inputs(config), config.state_features),
                                        nn.ReLU(), nn.Linear(config.state_features, config.state_features))
@@ -201,8 +213,8 @@ class StudentPolicy(nn.Module):
         self.head = ConditionalUnet1d(config.action_dim, obs_dim, config.head_dims, config.step_features)
         self.object_head = nn.Linear(self.encoder.out_features, object_outputs(config))
         """Training only unless a state input reads it: the object's table position from the depth features,
-        then (``hand_target``) the hand's offset from it, then (``seen_turn``) the object's yaw relative to
-        the fingers (``trainer.student.data.privileged_targets``)."""
+        then (``hand_target``) the hand's offset from it, then (``seen_turn``, ``seen_yaw``) the object's
+        yaw (``trainer.student.data.privileged_targets``)."""
 
     def encode(self, depth: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """Preprocessed depth [B, To, H, W] + raw state [B, S] -> observation feature [B, F]."""
@@ -215,12 +227,13 @@ class StudentPolicy(nn.Module):
         """The state MLP's input: the normalised state, then (``hand_pose``) the normalised hand pose, then
         (``object_offset``) the normalised offset of the object head's estimate from the hand, then
         (``seen_offset``) the object head's own reading of that offset, then (``seen_turn``) its reading of
-        the object's yaw relative to the fingers, both in its standardised units."""
+        the object's yaw relative to the fingers, both in its standardised units, or (``seen_yaw``) its
+        reading of the object's yaw on the table turned into the fingers' frame (cos, sin of twice it)."""
         parts = [self.state_norm.normalise(state)]
         if self.config.hand_pose:
             hand = hand_pose(state)
             parts.append(self.hand_norm.normalise(hand))
-        if not (self.config.object_offset or self.config.seen_offset or self.config.seen_turn):
+        if not (self.config.object_offset or self.config.seen_offset or self.config.yaw_target):
             return torch.cat(parts, dim=-1)
         estimate = self.object_head(depth_features)
         if self.config.object_offset:
@@ -231,13 +244,15 @@ class StudentPolicy(nn.Module):
             parts.append(estimate[:, 2:4])
         if self.config.seen_turn:
             parts.append(estimate[:, 5:7])
+        if self.config.seen_yaw:
+            parts.append(into_fingers(self.yaw_norm.unnormalise(estimate[:, 5:7]), hand))
         return torch.cat(parts, dim=-1)
 
     def fit_normalisers(self, state: np.ndarray, action: np.ndarray,
-                        objects: np.ndarray | None = None) -> None:
+                        targets: np.ndarray | None = None) -> None:
         """Statistics of the training demos: min-max of states, actions and (``hand_pose``) hand poses;
-        with ``object_offset`` also the object positions ``objects`` [N, 2] (mean, std) and their offsets
-        from the hand (min-max)."""
+        with ``object_offset`` also the object positions (``targets`` [N, 2+], the privileged targets: mean,
+        std) and their offsets from the hand (min-max); with ``seen_yaw`` the yaw columns' mean and std."""
         self.state_norm.fit(state.min(0), state.max(0))
         self.action_norm.fit(action.min(0), action.max(0))
         if not self.config.hand_pose:
@@ -245,9 +260,13 @@ class StudentPolicy(nn.Module):
         with torch.no_grad():
             hands = hand_pose(torch.from_numpy(np.asarray(state, np.float32))).numpy()
         self.hand_norm.fit(hands.min(0), hands.max(0))
+        if (self.config.object_offset or self.config.seen_yaw) and targets is None:
+            raise ValueError("object_offset and seen_yaw need the demos' privileged targets")
+        if self.config.seen_yaw:
+            mean, std = column_scale(targets[:, 5:7])
+            self.yaw_norm.fit(mean - std, mean + std)
         if self.config.object_offset:
-            if objects is None:
-                raise ValueError("object_offset needs the demos' object positions")
+            objects = targets[:, :2]
             mean, std = column_scale(objects)
             self.object_norm.fit(mean - std, mean + std)
             offsets = objects - hands[:, :2]

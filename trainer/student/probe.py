@@ -62,12 +62,12 @@ def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
 
 def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     """The object head's error on ``demos`` (cm), against predicting the training demos' mean position; for
-    a head with the hand target also the error of the hand's offset from the object, and with ``seen_turn``
-    of the object's yaw relative to the fingers (degrees, modulo pi)."""
+    a head with the hand target also the error of the hand's offset from the object, and with a yaw output
+    of the object's yaw as the head reads it (``yaw_target``; degrees, modulo pi)."""
     ckpt = checkpoint.load(Path(ckpt_path))
     if "demos" not in ckpt.info.data:
         raise DemoDataError(f"{ckpt_path} records no training demos (an untrained checkpoint?)")
-    hand, turn = ckpt.config.hand_target, ckpt.config.seen_turn
+    hand, turn = ckpt.config.hand_target, ckpt.config.yaw_target
     trained_on = training_targets(ckpt.info.data, hand, turn)
     store = DemoStore.open(demos)
     probed = privileged_targets(store, hand, turn=turn)

@@ -133,7 +133,7 @@ def object_frames(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset) -
     if not cfg.object_loss:
         raise FitError("--object-demos trains the object head: it needs --object-loss > 0")
     extra = DemoDataset(cfg.object_demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
-                        model_cfg.hand_target, target_reference=data.raw_targets, turn=model_cfg.seen_turn)
+                        model_cfg.hand_target, target_reference=data.raw_targets, turn=model_cfg.yaw_target)
     if extra.targets is None:
         raise FitError(f"{cfg.object_demos} does not record object_xy for every episode")
     return extra
@@ -211,7 +211,7 @@ def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo, data: D
                       model={k: v.clone() for k, v in weights.items()})
 
 
-STATE_INPUT_OPTIONS = ("hand_pose", "object_offset", "seen_turn")
+STATE_INPUT_OPTIONS = ("hand_pose", "object_offset", "seen_turn", "seen_yaw")
 
 
 def with_state_inputs(weights: dict[str, torch.Tensor], model_cfg: StudentConfig,
@@ -248,8 +248,7 @@ def with_fewer_frames(weights: dict[str, torch.Tensor], frames: int) -> dict[str
 
 def fit_to_demos(net: StudentPolicy, data: DemoDataset) -> None:
     """The network's normalisation statistics from the training demos (object positions where recorded)."""
-    objects = None if data.raw_targets is None else data.raw_targets[:, :2]
-    net.fit_normalisers(data.state, data.action, objects)
+    net.fit_normalisers(data.state, data.action, data.raw_targets)
 
 
 def plot_losses(losses: list[float], path: Path) -> None:
@@ -277,10 +276,10 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
     if cfg.batch % world:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
     data = DemoDataset(cfg.demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
-                       model_cfg.hand_target, episodes=cfg.episodes, turn=model_cfg.seen_turn)
-    if (model_cfg.object_offset or model_cfg.seen_offset or model_cfg.seen_turn) and not cfg.object_loss:
-        raise FitError("--object-offset, --seen-offset and --seen-turn read the object head's estimate: they "
-                       "need --object-loss > 0")
+                       model_cfg.hand_target, episodes=cfg.episodes, turn=model_cfg.yaw_target)
+    if (model_cfg.object_offset or model_cfg.seen_offset or model_cfg.yaw_target) and not cfg.object_loss:
+        raise FitError("--object-offset, --seen-offset, --seen-turn and --seen-yaw read the object head's "
+                       "estimate: they need --object-loss > 0")
     if cfg.object_loss and data.targets is None:
         raise FitError(f"{cfg.demos} does not record object_xy for every episode; train with --object-loss 0")
     extra = object_frames(cfg, model_cfg, data)
