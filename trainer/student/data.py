@@ -182,8 +182,10 @@ def privileged_targets(store: DemoStore, hand_target: bool, steps: int | None = 
     grasp site in x and y, and the grasp site's height above the table), which decides where to move and
     when to close; with ``turn`` (and ``hand_target``) [N, 7]: then the object's placed yaw, "table" as it
     lies or "fingers" relative to the fingers' closing axis, as cos and sin of twice the angle (a grasp
-    turned by pi is the same grasp). None
-    if an episode does not record the object's position. ``steps``: the first this many steps only."""
+    turned by pi is the same grasp). None if an episode does not record the object's position. ``steps``:
+    the first this many steps only."""
+    if turn not in ("", "table", "fingers"):
+        raise ValueError(f"turn must be '', 'table' or 'fingers', got {turn!r}")
     placed = object_positions(store)
     if placed is None:
         return None
