@@ -515,6 +515,13 @@ yaw6k() {  # docs/student.md "The wrist's turn": wrist6k's demos and schedule wi
     wrist_measures yaw6k_36k
 }
 
+yaw6k_onefr() {  # docs/student.md "From scratch, without the proxy": yaw6k fine-tuned 12000 steps reading one depth
+    # frame (--obs-horizon 1 --init folds the older frames' weights into it), so that the frames' motion is gone
+    finetune yaw6k_1fr_12k runs/sim/demos_seen_wrist6k.zarr gt 2 $HPOS --seen-yaw --obs-horizon 1 --steps 12000 \
+        --init runs/student/yaw6k_36k/ckpt.pt
+    wrist_measures yaw6k_1fr_12k
+}
+
 yaw6k1() {  # next (docs/student.md "From scratch, without the proxy"), not run yet: yaw6k reading one depth frame,
     # so that neither the wrist's angle nor the frames' motion can stand in for the object's yaw
     fit yaw6k1_36k runs/sim/demos_seen_wrist6k.zarr gt 2 36000 --lr 3e-4 --hand-pose --object-offset \
@@ -530,4 +537,4 @@ keyframe() {  # docs/student.md "The wrist's turn": the best GT student fine-tun
     wrist_measures gt6k_hpokf_12k
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k1|keyframe [NAME...]}"
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|yaw6k1|keyframe [NAME...]}"
