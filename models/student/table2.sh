@@ -522,13 +522,6 @@ yaw6k_onefr() {  # docs/student.md "From scratch, without the proxy": yaw6k fine
     wrist_measures yaw6k_1fr_12k
 }
 
-yaw6k1() {  # next (docs/student.md "From scratch, without the proxy"), not run yet: yaw6k reading one depth frame,
-    # so that neither the wrist's angle nor the frames' motion can stand in for the object's yaw
-    fit yaw6k1_36k runs/sim/demos_seen_wrist6k.zarr gt 2 36000 --lr 3e-4 --hand-pose --object-offset \
-        --seen-offset --seen-yaw --obs-horizon 1
-    wrist_measures yaw6k1_36k
-}
-
 keyframe() {  # docs/student.md "The wrist's turn": the best GT student fine-tuned 12000 steps with the steps where
     # the expert's action changes (which way to turn, when to close) drawn more often (--keyframe-weight 10: the
     # first two steps of an episode make 8 % of the draws instead of 3 %)
@@ -537,4 +530,4 @@ keyframe() {  # docs/student.md "The wrist's turn": the best GT student fine-tun
     wrist_measures gt6k_hpokf_12k
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|yaw6k1|keyframe [NAME...]}"
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe [NAME...]}"
