@@ -30,8 +30,8 @@ correlates its wrist-turn action (joint 7, the first of each chunk) with the exp
 beside how well the wrist's angle off home alone predicts the expert's turn, and how well the object's yaw
 from the fingers does: at step 0 neither the wrist's angle nor the frame history says which way the expert
 turns, only the object's yaw in the image does. With a ``--seen-turn`` or ``--seen-yaw`` student's
-``--checkpoint`` it also
-says how far its object head's yaw reading is off at those steps, and how much weight the policy puts on it.
+``--checkpoint`` it also says how far its object head's yaw reading is off at those steps, and how much weight
+the policy puts on it.
 """
 
 from __future__ import annotations
@@ -227,13 +227,16 @@ class YawReading:
         if not self.ckpt.config.yaw_target:
             raise SystemExit(f"{ckpt_path}: neither --seen-turn nor --seen-yaw, its object head reads no yaw")
         self.net = self.ckpt.policy().eval()
-        mean, std = column_scale(training_targets(self.ckpt.info.data, True, self.ckpt.config.yaw_target))
-        self.mean, self.std = mean[5:7], std[5:7]
+        if self.ckpt.config.seen_turn:  # its head's standardised units; --seen-yaw's network decodes its own
+            mean, std = column_scale(training_targets(self.ckpt.info.data, True, "fingers"))
+            self.mean, self.std = mean[5:7], std[5:7]
 
     def off_deg(self, stacks: np.ndarray, states: np.ndarray, truth: np.ndarray) -> np.ndarray:
         """Per frame stack and state: how far the reading lies from ``truth`` (cos, sin of twice the yaw from
         the fingers), degrees."""
         import torch
+
+        from trainer.student.probe import yaw_error_deg
 
         with torch.no_grad():
             features = self.net.encoder(torch.from_numpy(stacks))
@@ -241,8 +244,7 @@ class YawReading:
                 guess = self.net.state_input(features, torch.from_numpy(states))[:, -2:].numpy()
             else:
                 guess = self.net.object_head(features).numpy()[:, 5:7] * self.std + self.mean
-        doubled = np.arctan2(guess[:, 1], guess[:, 0]) - np.arctan2(truth[:, 1], truth[:, 0])
-        return np.degrees(np.abs(np.angle(np.exp(1j * doubled)))) / 2
+        return yaw_error_deg(guess, truth)
 
     def weights(self) -> str:
         """Whether the policy uses the reading: the state MLP's first-layer weights on its last inputs."""

@@ -60,6 +60,13 @@ def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
             "gripper_sign_agreement": float(np.mean(gripper_ok))}
 
 
+def yaw_error_deg(guess: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Per row of two [N, 2] (cos, sin) of twice a yaw: the angle between the doubled directions, halved back
+    (degrees, modulo 180: a grasp turned by pi is the same grasp)."""
+    doubled = np.arctan2(guess[:, 1], guess[:, 0]) - np.arctan2(truth[:, 1], truth[:, 0])
+    return np.degrees(np.abs(np.angle(np.exp(1j * doubled)))) / 2
+
+
 def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     """The object head's error on ``demos`` (cm), against predicting the training demos' mean position; for
     a head with the hand target also the error of the hand's offset from the object, and with a yaw output
@@ -86,9 +93,8 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     if hand:
         hand_err = np.linalg.norm(predicted[:, 2:5] - probed[steps, 2:5], axis=1) * 100
         result["hand_offset_err_cm"] = {"median": float(np.median(hand_err)), "mean": float(hand_err.mean())}
-    if turn:  # the angle between the doubled-yaw directions, halved back; by kind (round ones have no yaw)
-        doubled = [np.arctan2(x[:, 6], x[:, 5]) for x in (predicted, probed[steps])]
-        turn_err = np.degrees(np.abs(np.angle(np.exp(1j * (doubled[0] - doubled[1]))))) / 2
+    if turn:  # by kind: the round ones have no yaw to read
+        turn_err = yaw_error_deg(predicted[:, 5:7], probed[steps, 5:7])
         kinds = np.repeat([str(k) for k in store.root["meta/kind"][:]], store.episode_lengths)[steps]
         result["turn_err_deg"] = {"median": float(np.median(turn_err)), "mean": float(turn_err.mean()),
                                   "median_by_kind": {k: float(np.median(turn_err[kinds == k]))
