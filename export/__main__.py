@@ -1,4 +1,5 @@
-"""``python -m export CHECKPOINT --ddim-steps K --out student.onnx [--exec-horizon N] [--int8]``."""
+"""``python -m export CHECKPOINT --ddim-steps K --out student.onnx [--ddim-spacing S] [--exec-horizon N]
+[--int8]``."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from pathlib import Path
 import onnx
 
 from export.graph import build_model
+from runtime.metadata import DDIM_SPACINGS
 from trainer.student import checkpoint
 from trainer.student.config import StudentConfigError
 
@@ -20,6 +22,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                                 "self-describing ONNX policy file (DDIM unrolled, metadata inside).")
     p.add_argument("checkpoint", type=Path, help="student checkpoint (.pt) from `trainer student fit|init`")
     p.add_argument("--ddim-steps", type=int, default=4, help="DDIM updates unrolled in the graph (default 4)")
+    p.add_argument("--ddim-spacing", choices=DDIM_SPACINGS, default="leading",
+                   help="where the DDIM steps sit among the 100 training steps: leading starts at "
+                   "100 - 100/K (75 at K=4), trailing at 99, where the start noise is pure noise "
+                   "(default leading)")
     p.add_argument("--out", type=Path, default=Path("student.onnx"), help="output ONNX file")
     p.add_argument("--exec-horizon", type=int, default=None,
                    help="actions the runtime executes from each chunk before re-planning (default: the "
@@ -38,9 +44,10 @@ def main(argv: list[str] | None = None) -> int:
     except (checkpoint.CheckpointError, StudentConfigError) as exc:
         print(f"export: {exc}", file=sys.stderr)
         return 2
-    model, meta = build_model(ckpt, args.checkpoint, args.ddim_steps)
+    model, meta = build_model(ckpt, args.checkpoint, args.ddim_steps, args.ddim_spacing)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    report = {"out": str(args.out), "ddim_steps": meta.ddim_steps, "trained": meta.trained}
+    report = {"out": str(args.out), "ddim_steps": meta.ddim_steps, "ddim_spacing": meta.ddim_spacing,
+              "trained": meta.trained}
     if args.int8:
         from export.quantize import quantize_if_worth_it
         model, report["int8"] = quantize_if_worth_it(model, ckpt)

@@ -31,7 +31,7 @@ class CheckError(RuntimeError):
 def reference_actions(policy: StudentPolicy, meta: PolicyMetadata, depth: torch.Tensor, state: torch.Tensor,
                       noise: torch.Tensor) -> torch.Tensor:
     """The eager torch loop the graph must reproduce: diffusers' DDIM steps, then robot units."""
-    sched = reference_scheduler(policy.config.train_timesteps, meta.ddim_steps)
+    sched = reference_scheduler(policy.config.train_timesteps, meta.ddim_steps, meta.ddim_spacing)
     with torch.no_grad():
         obs = policy.encode(depth, state)
         x = noise
@@ -94,7 +94,7 @@ def run_check(model_path: Path, ckpt_path: Path | None = None, repeats: int = 30
                                            lambda: reference_actions(policy, meta, depth, state, noise)],
                                           repeats)
     return {"model": str(model_path), "max_abs_err": max(errors), "ddim_steps": meta.ddim_steps,
-            "threads": threads, "repeats": repeats,
+            "ddim_spacing": meta.ddim_spacing, "threads": threads, "repeats": repeats,
             "ort_ms": statistics.median(ort_ms), "ort_p99_ms": float(np.percentile(ort_ms, 99)),
             "torch_ms": statistics.median(torch_ms), "torch_p99_ms": float(np.percentile(torch_ms, 99)),
             "speedup": statistics.median(torch_ms) / statistics.median(ort_ms),

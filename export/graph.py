@@ -24,10 +24,11 @@ class UnrolledPolicy(nn.Module):
     """(depth, state, noise) -> actions in robot units; the DDIM timesteps are Python constants, so tracing
     unrolls the loop and bakes each step's coefficients into the graph."""
 
-    def __init__(self, policy: StudentPolicy, ddim_steps: int, action_scale: float) -> None:
+    def __init__(self, policy: StudentPolicy, ddim_steps: int, action_scale: float,
+                 spacing: str = "leading") -> None:
         super().__init__()
         self.policy = policy
-        self.plan = ddim_plan(policy.config.train_timesteps, ddim_steps)
+        self.plan = ddim_plan(policy.config.train_timesteps, ddim_steps, spacing)
         joint_scale = torch.ones(policy.config.action_dim)
         joint_scale[:7] = action_scale  # paper eq. 1: the 7 joint deltas in radians; the gripper stays as is
         self.register_buffer("robot_scale", joint_scale)
@@ -50,12 +51,13 @@ def example_inputs(meta: PolicyMetadata, seed: int = 0) -> tuple[torch.Tensor, .
     return depth, torch.randn(shapes["state"], generator=g) * 0.5, torch.randn(shapes["noise"], generator=g)
 
 
-def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path) -> PolicyMetadata:
+def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path,
+                    spacing: str = "leading") -> PolicyMetadata:
     cfg, info, net = ckpt.config, ckpt.info, ckpt.policy()
     return PolicyMetadata(
         preprocess=info.depth_spec, control_rate_hz=info.control_rate_hz, action_scale=info.action_scale,
         obs_horizon=cfg.obs_horizon, action_horizon=cfg.action_horizon, exec_horizon=cfg.exec_horizon,
-        ddim_steps=ddim_steps, state_dim=cfg.state_dim, action_dim=cfg.action_dim,
+        ddim_steps=ddim_steps, ddim_spacing=spacing, state_dim=cfg.state_dim, action_dim=cfg.action_dim,
         normalisation={"state": net.state_norm.summary(), "action": net.action_norm.summary(),
                        "action_units": "env [-1, 1]; joints x action_scale in the graph output"},
         training_data={**info.data, "checkpoint": str(Path(ckpt_path).resolve()),
@@ -64,10 +66,11 @@ def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path) -> Polic
         trained=info.trained)
 
 
-def build_model(ckpt: Checkpoint, ckpt_path: Path, ddim_steps: int) -> tuple[onnx.ModelProto, PolicyMetadata]:
+def build_model(ckpt: Checkpoint, ckpt_path: Path, ddim_steps: int,
+                spacing: str = "leading") -> tuple[onnx.ModelProto, PolicyMetadata]:
     """Trace the unrolled policy to ONNX (TorchScript exporter, one file, static shapes); attach metadata."""
-    meta = policy_metadata(ckpt, ddim_steps, ckpt_path)
-    module = UnrolledPolicy(ckpt.policy(), ddim_steps, ckpt.info.action_scale).eval()
+    meta = policy_metadata(ckpt, ddim_steps, ckpt_path, spacing)
+    module = UnrolledPolicy(ckpt.policy(), ddim_steps, ckpt.info.action_scale, spacing).eval()
     buf = io.BytesIO()
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # tracer warnings about Python constants are the point here

@@ -16,6 +16,11 @@ from runtime.preprocess import DepthSpec
 
 SCHEMA = "diffudepgrasp.policy/1"
 METADATA_KEY = "diffudepgrasp"  # the metadata_props key that holds the JSON
+DDIM_SPACINGS = ("leading", "trailing")
+"""Where K inference steps sit among the training steps (diffusers' ``timestep_spacing``): ``leading`` starts
+at T - T/K (75 of 100 at K = 4), so the start noise is read as a sample that is already 37 % signal;
+``trailing`` starts at the last training step (99: pure noise, as the start noise is), Lin et al. 2024,
+"Common diffusion noise schedules and sample steps are flawed"."""
 
 
 class MetadataError(ValueError):
@@ -36,6 +41,9 @@ class PolicyMetadata:
     exec_horizon: int = 8
     """Actions executed from each chunk before the next inference result replaces them."""
     ddim_steps: int = 4
+    ddim_spacing: str = "leading"
+    """Where the DDIM steps sit among the training steps (``DDIM_SPACINGS``); files from before
+    this field were all ``leading``."""
     state_dim: int = 8
     action_dim: int = 8
     normalisation: dict[str, Any] = field(default_factory=dict)
@@ -62,6 +70,8 @@ class PolicyMetadata:
         for name in ("obs_horizon", "ddim_steps", "state_dim", "action_dim"):
             if not getattr(self, name) >= 1:
                 raise MetadataError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.ddim_spacing not in DDIM_SPACINGS:
+            raise MetadataError(f"ddim_spacing must be one of {DDIM_SPACINGS}, got {self.ddim_spacing!r}")
         if not all(math.isfinite(x) for x in self.joint_offset_rad):
             raise MetadataError(f"joint_offset_rad must be finite angles, got {self.joint_offset_rad}")
 

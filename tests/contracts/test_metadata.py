@@ -18,11 +18,18 @@ def test_round_trip():
     (lambda d: d | {"exec_horizon": 99}, "exec_horizon"),
     (lambda d: d | {"surprise": 1}, "unknown"),
     (lambda d: d | {"preprocess": {"near_m": 3.0}}, "near_m"),
+    (lambda d: d | {"ddim_spacing": "linspace"}, "ddim_spacing"),
 ])
 def test_bad_metadata_is_refused(edit, match):
     d = json.loads(PolicyMetadata(preprocess=DepthSpec()).to_json())
     with pytest.raises(MetadataError, match=match):
         PolicyMetadata.from_json(json.dumps(edit(d)))
+
+
+def test_files_from_before_the_spacing_field_read_as_leading():
+    d = json.loads(PolicyMetadata(preprocess=DepthSpec(), ddim_spacing="trailing").to_json())
+    del d["ddim_spacing"]
+    assert PolicyMetadata.from_json(json.dumps(d)).ddim_spacing == "leading"
 
 
 def test_not_json():

@@ -28,13 +28,14 @@ def test_fixture_is_a_valid_untrained_policy(untrained_student_onnx):
     assert [d.dim_value for d in model.graph.output[0].type.tensor_type.shape.dim] == [1, 16, 8]
 
 
-@pytest.mark.parametrize("steps", [1, 4, 8, 16])
-def test_onnx_matches_torch_ddim_loop(untrained_student_checkpoint, tmp_path, steps):
+@pytest.mark.parametrize("steps, spacing", [(1, "leading"), (4, "leading"), (8, "leading"), (16, "leading"),
+                                            (4, "trailing")])
+def test_onnx_matches_torch_ddim_loop(untrained_student_checkpoint, tmp_path, steps, spacing):
     out = tmp_path / f"k{steps}.onnx"
     ckpt = str(untrained_student_checkpoint)
-    assert export_main([ckpt, "--ddim-steps", str(steps), "--out", str(out)]) == 0
+    assert export_main([ckpt, "--ddim-steps", str(steps), "--ddim-spacing", spacing, "--out", str(out)]) == 0
     report = run_check(out, repeats=1, trials=2, threads=1)
-    assert report["ddim_steps"] == steps
+    assert (report["ddim_steps"], report["ddim_spacing"]) == (steps, spacing)
     assert report["max_abs_err"] <= 1e-5
 
 

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import torch
 from diffusers import DDIMScheduler, DDPMScheduler
 
+from runtime.metadata import DDIM_SPACINGS
+
 _SCHEDULE = {"beta_schedule": "squaredcos_cap_v2", "clip_sample": True, "prediction_type": "epsilon"}
 
 
@@ -25,12 +27,14 @@ def training_scheduler(train_timesteps: int) -> DDPMScheduler:
     return DDPMScheduler(num_train_timesteps=train_timesteps, **_SCHEDULE)
 
 
-def reference_scheduler(train_timesteps: int, steps: int) -> DDIMScheduler:
+def reference_scheduler(train_timesteps: int, steps: int, spacing: str = "leading") -> DDIMScheduler:
     """diffusers' DDIM with ``steps`` inference steps: the reference our unrolled update must match."""
     if not 1 <= steps <= train_timesteps:
         raise DdimError(f"DDIM steps must be in 1..{train_timesteps}, got {steps}")
+    if spacing not in DDIM_SPACINGS:
+        raise DdimError(f"DDIM spacing must be one of {DDIM_SPACINGS}, got {spacing!r}")
     sched = DDIMScheduler(num_train_timesteps=train_timesteps, set_alpha_to_one=True, steps_offset=0,
-                          **_SCHEDULE)
+                          timestep_spacing=spacing, **_SCHEDULE)
     sched.set_timesteps(steps)
     return sched
 
@@ -44,9 +48,9 @@ class DdimStep:
     sqrt_one_minus_alpha_prev: float
 
 
-def ddim_plan(train_timesteps: int, steps: int) -> list[DdimStep]:
+def ddim_plan(train_timesteps: int, steps: int, spacing: str = "leading") -> list[DdimStep]:
     """Timesteps and coefficients of a deterministic (eta=0) DDIM run, in diffusers' float32 arithmetic."""
-    sched = reference_scheduler(train_timesteps, steps)
+    sched = reference_scheduler(train_timesteps, steps, spacing)
     stride = train_timesteps // steps
     plan = []
     for t in sched.timesteps.tolist():
