@@ -61,7 +61,11 @@ def test_signal_sends_hold_and_exits_zero(tmp_path, sig):
     ticks = [json.loads(line) for line in metrics.read_text().splitlines()]
     assert len(ticks) >= 9 and FIELDS <= set(ticks[0])
     assert [t["cmd_seq"] for t in ticks] == list(range(len(ticks)))
-    assert all(t["t_capture"] <= t["t_receive"] <= t["t_preprocess"] <= t["t_send"] for t in ticks)
+    # a loaded machine may delay a frame or a state for a tick: that tick holds, says why, and has no capture
+    assert all(t["status"] for t in ticks if t["hold"])
+    acted = [t for t in ticks if not t["hold"]]
+    assert len(acted) >= len(ticks) // 2
+    assert all(t["t_capture"] <= t["t_receive"] <= t["t_preprocess"] <= t["t_send"] for t in acted)
 
 
 def test_camera_that_vanishes_is_fatal_after_hold(tmp_path):
