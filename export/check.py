@@ -31,7 +31,8 @@ class CheckError(RuntimeError):
 def reference_actions(policy: StudentPolicy, meta: PolicyMetadata, depth: torch.Tensor, state: torch.Tensor,
                       noise: torch.Tensor) -> torch.Tensor:
     """The eager torch loop the graph must reproduce: diffusers' DDIM steps, then robot units."""
-    sched = reference_scheduler(policy.config.train_timesteps, meta.ddim_steps, meta.ddim_spacing)
+    sched = reference_scheduler(policy.config.train_timesteps, meta.ddim_steps, meta.ddim_spacing,
+                                policy.config.prediction)
     with torch.no_grad():
         obs = policy.encode(depth, state)
         x = noise

@@ -38,7 +38,7 @@ class UnrolledPolicy(nn.Module):
         x = noise
         for step in self.plan:
             steps = torch.full((x.shape[0],), step.timestep, dtype=torch.int64)
-            x = ddim_update(x, self.policy(x, steps, obs), step)
+            x = ddim_update(x, self.policy(x, steps, obs), step, self.policy.config.prediction)
         return self.policy.action_norm.unnormalise(x) * self.robot_scale
 
 

@@ -28,7 +28,7 @@ from trainer.dataset import DemoStore
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, run_episode
 from trainer.student.config import StudentConfig
-from trainer.student.ddim import ddim_plan, ddim_update, training_scheduler
+from trainer.student.ddim import ddim_plan, ddim_update, denoising_target, training_scheduler
 from trainer.student.model import StudentPolicy, hand_pose
 from trainer.student.train import ema_update
 
@@ -90,7 +90,7 @@ def fit(args: argparse.Namespace) -> None:
     net.std.copy_(x.std(0).clamp_min(1e-6))
     params = [p for name, p in net.named_parameters() if not name.startswith("student.encoder")]
     optim = torch.optim.AdamW(params, lr=args.lr, weight_decay=1e-6)
-    scheduler = training_scheduler(config.train_timesteps)
+    scheduler = training_scheduler(config.train_timesteps, config.prediction)
     ema = {k: v.clone() for k, v in net.state_dict().items()}
     rng, gen = np.random.default_rng(0), torch.Generator().manual_seed(0)
     started = time.perf_counter()
@@ -103,7 +103,8 @@ def fit(args: argparse.Namespace) -> None:
         noise = torch.randn(clean.shape, generator=gen)
         k = torch.randint(0, config.train_timesteps, (args.batch,), generator=gen)
         obs = net.obs(torch.from_numpy(facts[i]), torch.from_numpy(state[i]))
-        loss = nn.functional.mse_loss(net.student(scheduler.add_noise(clean, noise, k), k, obs), noise)
+        loss = nn.functional.mse_loss(net.student(scheduler.add_noise(clean, noise, k), k, obs),
+                                      denoising_target(scheduler, clean, noise, k))
         optim.zero_grad()
         loss.backward()
         optim.step()
@@ -140,7 +141,8 @@ class OraclePolicy:
             cond = self.net.obs(self.facts, torch.from_numpy(obs.state)[None])
             x = torch.randn((1, self.config.action_horizon, self.config.action_dim), generator=self.generator)
             for step in self.plan:
-                x = ddim_update(x, self.net.student(x, torch.tensor([step.timestep]), cond), step)
+                x = ddim_update(x, self.net.student(x, torch.tensor([step.timestep]), cond), step,
+                                self.config.prediction)
             chunk = self.net.student.action_norm.unnormalise(x)[0].numpy()
             chunk[:, :7] = np.clip(chunk[:, :7], -1.0, 1.0)
             chunk[:, 7] = np.where(chunk[:, 7] > 0, 1.0, -1.0)

@@ -54,6 +54,20 @@ def test_hand_pose_student_exports_with_its_kinematics_in_the_graph(tmp_path, in
     assert json.loads(config)["hand_pose"] is ("--hand-pose" in inputs)
 
 
+@pytest.mark.parametrize("spacing", ["leading", "trailing"])
+def test_velocity_student_exports(tmp_path, spacing):
+    """A --prediction v_prediction student's graph reads its output as the velocity, as diffusers' DDIM does."""
+    from tests.conftest import TINY_STUDENT
+    from trainer.student.cli import main as student_main
+
+    ckpt, out = tmp_path / "v.pt", tmp_path / "v.onnx"
+    assert student_main(["init", "--out", str(ckpt), "--prediction", "v_prediction", *TINY_STUDENT]) == 0
+    assert export_main([str(ckpt), "--ddim-steps", "4", "--ddim-spacing", spacing, "--out", str(out)]) == 0
+    assert run_check(out, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
+    config = read_metadata(onnx.load(str(out))).training_data["student_config"]
+    assert json.loads(config)["prediction"] == "v_prediction"
+
+
 def test_check_cli_json(untrained_student_onnx):
     proc = subprocess.run([sys.executable, "-m", "export.check", str(untrained_student_onnx), "--json",
                            "--repeats", "2", "--threads", "1"], capture_output=True, text=True, check=True,

@@ -435,3 +435,30 @@ def test_keyframe_weight_draws_the_steps_where_the_expert_changes_its_action(sma
         fit_main([*fit_args(small_demos, tmp_path / "run", 1), "--keyframe-weight", "-1"])
     assert fit_main([*fit_args(small_demos, tmp_path / "run", 2), "--keyframe-weight", "10"]) == 0
     assert checkpoint.load(tmp_path / "run" / "ckpt.pt").step == 2
+
+
+def test_velocity_prediction_is_trained_on_the_velocity(small_demos, tmp_path):
+    """--prediction v_prediction: the denoising loss is the MSE to sqrt(a) noise - sqrt(1 - a) actions, on the
+    same draws as the epsilon loss; an unknown prediction is refused."""
+    from trainer.student.config import StudentConfigError
+
+    out = tmp_path / "velocity"
+    assert fit_main([*fit_args(small_demos, out, 1), "--prediction", "v_prediction"]) == 0
+    net = checkpoint.load(out / "ckpt.pt").policy()
+    assert net.config.prediction == "v_prediction"
+    batch = DemoDataset(small_demos, "gt", 3, 16).batch(np.arange(4))
+    loss = DenoisingLoss(net)
+    with torch.no_grad():
+        _, got = loss(batch, torch.Generator().manual_seed(3))
+        g = torch.Generator().manual_seed(3)  # the loss's own draws, in its order
+        clean = net.action_norm.normalise(batch.action)
+        noise = torch.randn(clean.shape, generator=g)
+        k = torch.randint(0, 100, (4,), generator=g)
+        a = loss.scheduler.alphas_cumprod[k][:, None, None]
+        velocity = a.sqrt() * noise - (1 - a).sqrt() * clean
+        noisy = a.sqrt() * clean + (1 - a).sqrt() * noise
+        want = torch.nn.functional.mse_loss(net(noisy, k, net.fuse(net.encoder(batch.depth), batch.state)),
+                                            velocity)
+    torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-4)
+    with pytest.raises(StudentConfigError, match="prediction"):
+        fit_main([*fit_args(small_demos, tmp_path / "x0", 1), "--prediction", "sample"])

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, fields
 
+PREDICTIONS = ("epsilon", "v_prediction")
+
 
 class StudentConfigError(ValueError):
     """A student configuration that cannot build a model (bad width, horizon, dims)."""
@@ -35,6 +37,12 @@ class StudentConfig:
     """Size of the sinusoidal diffusion-step embedding."""
     train_timesteps: int = 100
     """DDPM steps used in training (squared-cosine schedule, as diffusion_policy)."""
+    prediction: str = "epsilon"
+    """What the denoiser predicts: "epsilon" (the noise, as diffusion_policy) or "v_prediction" (the velocity
+    sqrt(a) noise - sqrt(1 - a) actions, Salimans & Ho 2022). Where the sample is nearly pure noise the
+    epsilon loss barely weighs the actions, so a decision that a chunk makes visible in its own noisy sample
+    (which way to turn the wrist) need not be learnt from the observation; the velocity there is the actions
+    themselves (docs/student.md "The first step's turn")."""
     hand_target: bool = False
     """The training-only object head also reads, from depth, where the hand is relative to the object:
     object minus grasp site in x, y and the grasp site's height above the table (3 more outputs)."""
@@ -71,6 +79,8 @@ class StudentConfig:
         return "fingers" if self.seen_turn else "table" if self.seen_yaw else ""
 
     def __post_init__(self) -> None:
+        if self.prediction not in PREDICTIONS:
+            raise StudentConfigError(f"prediction must be one of {PREDICTIONS}, got {self.prediction!r}")
         if self.seen_turn and self.seen_yaw:
             raise StudentConfigError("seen_turn and seen_yaw are two ways to read the yaw: choose one")
         if self.seen_yaw and not (self.hand_target and self.hand_pose):

@@ -3,8 +3,9 @@
 The DDIM update is written out here (not called through diffusers) so that export can unroll K steps into
 the ONNX graph with each step's timestep and coefficients baked in as constants. Its coefficients are read
 from diffusers' DDIMScheduler, which is also the reference the tests and ``export.check`` compare against.
-Schedule settings follow diffusion_policy: 100 training steps, squared-cosine betas, epsilon prediction,
-x0 clipped to [-1, 1] (actions are normalised to that range).
+Schedule settings follow diffusion_policy: 100 training steps, squared-cosine betas, x0 clipped to [-1, 1]
+(actions are normalised to that range); the network predicts the noise (epsilon, diffusion_policy's choice) or
+the velocity (``v_prediction``, Salimans & Ho 2022), as its ``StudentConfig.prediction`` says.
 """
 
 from __future__ import annotations
@@ -16,25 +17,35 @@ from diffusers import DDIMScheduler, DDPMScheduler
 
 from runtime.metadata import DDIM_SPACINGS
 
-_SCHEDULE = {"beta_schedule": "squaredcos_cap_v2", "clip_sample": True, "prediction_type": "epsilon"}
+_SCHEDULE = {"beta_schedule": "squaredcos_cap_v2", "clip_sample": True}
 
 
 class DdimError(ValueError):
     """A DDIM step count the training schedule cannot provide."""
 
 
-def training_scheduler(train_timesteps: int) -> DDPMScheduler:
-    return DDPMScheduler(num_train_timesteps=train_timesteps, **_SCHEDULE)
+def training_scheduler(train_timesteps: int, prediction: str) -> DDPMScheduler:
+    return DDPMScheduler(num_train_timesteps=train_timesteps, prediction_type=prediction, **_SCHEDULE)
 
 
-def reference_scheduler(train_timesteps: int, steps: int, spacing: str = "leading") -> DDIMScheduler:
+def denoising_target(scheduler: DDPMScheduler, clean: torch.Tensor, noise: torch.Tensor,
+                     steps: torch.Tensor) -> torch.Tensor:
+    """What the network learns to output for ``scheduler.add_noise(clean, noise, steps)`` (paper eq. 10's
+    epsilon, or the velocity)."""
+    if scheduler.config.prediction_type == "epsilon":
+        return noise
+    return scheduler.get_velocity(clean, noise, steps)
+
+
+def reference_scheduler(train_timesteps: int, steps: int, spacing: str = "leading",
+                        prediction: str = "epsilon") -> DDIMScheduler:
     """diffusers' DDIM with ``steps`` inference steps: the reference our unrolled update must match."""
     if not 1 <= steps <= train_timesteps:
         raise DdimError(f"DDIM steps must be in 1..{train_timesteps}, got {steps}")
     if spacing not in DDIM_SPACINGS:
         raise DdimError(f"DDIM spacing must be one of {DDIM_SPACINGS}, got {spacing!r}")
     sched = DDIMScheduler(num_train_timesteps=train_timesteps, set_alpha_to_one=True, steps_offset=0,
-                          timestep_spacing=spacing, **_SCHEDULE)
+                          timestep_spacing=spacing, prediction_type=prediction, **_SCHEDULE)
     sched.set_timesteps(steps)
     return sched
 
@@ -61,7 +72,11 @@ def ddim_plan(train_timesteps: int, steps: int, spacing: str = "leading") -> lis
     return plan
 
 
-def ddim_update(sample: torch.Tensor, eps: torch.Tensor, step: DdimStep) -> torch.Tensor:
-    """One eta=0 DDIM step x_t -> x_{t-stride} from the predicted noise."""
-    x0 = ((sample - step.sqrt_one_minus_alpha * eps) / step.sqrt_alpha).clamp(-1.0, 1.0)
-    return step.sqrt_alpha_prev * x0 + step.sqrt_one_minus_alpha_prev * eps
+def ddim_update(sample: torch.Tensor, output: torch.Tensor, step: DdimStep, prediction: str) -> torch.Tensor:
+    """One eta=0 DDIM step x_t -> x_{t-stride} from the network's output (noise or velocity)."""
+    if prediction == "epsilon":
+        x0, eps = (sample - step.sqrt_one_minus_alpha * output) / step.sqrt_alpha, output
+    else:  # v = sqrt(alpha) eps - sqrt(1 - alpha) x0: at pure noise it is -x0, read off the observation alone
+        x0 = step.sqrt_alpha * sample - step.sqrt_one_minus_alpha * output
+        eps = step.sqrt_alpha * output + step.sqrt_one_minus_alpha * sample
+    return step.sqrt_alpha_prev * x0.clamp(-1.0, 1.0) + step.sqrt_one_minus_alpha_prev * eps

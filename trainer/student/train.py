@@ -29,7 +29,7 @@ from trainer.student.argspec import add_dataclass_args, from_args
 from trainer.student.checkpoint import Checkpoint, TrainingInfo
 from trainer.student.config import StudentConfig
 from trainer.student.data import DEPTH_ARRAYS, Batch, DemoDataset
-from trainer.student.ddim import training_scheduler
+from trainer.student.ddim import denoising_target, training_scheduler
 from trainer.student.model import StudentPolicy
 
 CKPT_NAME = "ckpt.pt"
@@ -102,7 +102,7 @@ class DenoisingLoss(nn.Module):
         super().__init__()
         self.policy = policy
         self.object_weight = object_weight
-        self.scheduler = training_scheduler(policy.config.train_timesteps)
+        self.scheduler = training_scheduler(policy.config.train_timesteps, policy.config.prediction)
 
     def forward(self, batch: Batch, generator: torch.Generator,
                 seen_only: Batch | None = None) -> tuple[torch.Tensor, torch.Tensor]:
@@ -114,7 +114,8 @@ class DenoisingLoss(nn.Module):
         noisy = self.scheduler.add_noise(clean, noise, k)
         features = self.policy.encoder(batch.depth)
         obs = self.policy.fuse(features, batch.state)
-        denoising = nn.functional.mse_loss(self.policy(noisy, k, obs), noise)
+        target = denoising_target(self.scheduler, clean, noise, k)
+        denoising = nn.functional.mse_loss(self.policy(noisy, k, obs), target)
         if not self.object_weight:
             return denoising, denoising
         if seen_only is not None:
