@@ -6,8 +6,14 @@ import pytest
 import torch
 
 from trainer.student.config import PREDICTIONS
-from trainer.student.ddim import (DdimError, ddim_plan, ddim_update, denoising_target, reference_scheduler,
-                                  training_scheduler)
+from trainer.student.ddim import (
+    DdimError,
+    ddim_plan,
+    ddim_update,
+    denoising_target,
+    reference_scheduler,
+    training_scheduler,
+)
 
 
 @pytest.mark.parametrize("prediction", PREDICTIONS)
