@@ -56,7 +56,7 @@ def test_hand_pose_student_exports_with_its_kinematics_in_the_graph(tmp_path, in
 
 @pytest.mark.parametrize("spacing", ["leading", "trailing"])
 def test_velocity_student_exports(tmp_path, spacing):
-    """A --prediction v_prediction student's graph reads its output as the velocity, as diffusers' DDIM does."""
+    """A --prediction v_prediction student's graph reads its output as the velocity, as diffusers' DDIM."""
     from tests.conftest import TINY_STUDENT
     from trainer.student.cli import main as student_main
 
