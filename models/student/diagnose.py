@@ -12,6 +12,7 @@
                                                           [--sensor stereo]
     python models/student/diagnose.py copycat S.onnx --demos D.zarr   # its wrist turn on the demos, by step
                                               [--checkpoint ckpt.pt]  # a --seen-turn student's yaw reading
+    python models/student/diagnose.py decides --checkpoint ckpt.pt --demos D.zarr --episodes 600
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
 look like; ``spread`` regresses a policy's closing offset (object minus grasp site when it first closes the
@@ -31,7 +32,11 @@ beside how well the wrist's angle off home alone predicts the expert's turn, and
 from the fingers does: at step 0 neither the wrist's angle nor the frame history says which way the expert
 turns, only the object's yaw in the image does. With a ``--seen-turn`` or ``--seen-yaw`` student's
 ``--checkpoint`` it also says how far its object head's yaw reading is off at those steps, and how much weight
-the policy puts on it.
+the policy puts on it. ``decides`` asks who decides the first step's turn in the denoiser: at the episode's
+start (and at step 5), it noises the expert's chunk and the same chunk with the wrist's turn flipped, with the
+same noise, to training timestep t, and says how often the network's clean-chunk estimate turns the expert's
+way from each. Where both agree with the expert, the observation decides; where the estimate follows the
+flipped chunk, the noisy chunk does, and in sampling that chunk is the start noise.
 """
 
 from __future__ import annotations
@@ -288,6 +293,54 @@ def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
         print(reading.weights(), flush=True)
 
 
+DECIDES_T = (99, 95, 90, 75, 50)
+"""decides: training timesteps at which the network's clean-chunk estimate is read."""
+
+
+def decides(ckpt_path: str, demos: str, episodes: int) -> None:
+    import torch
+
+    from trainer.dataset import DemoStore
+    from trainer.student import checkpoint
+    from trainer.student.data import DemoDataset
+    from trainer.student.ddim import training_scheduler
+
+    net = checkpoint.load(Path(ckpt_path)).policy().eval()
+    cfg = net.config
+    data = DemoDataset(demos, "gt", cfg.obs_horizon, cfg.action_horizon, episodes=episodes)
+    kinds = [str(k) for k in DemoStore.open(demos).root["meta/kind"][: len(data.ends)]]
+    starts = np.array([s for s, k in zip(np.r_[0, data.ends[:-1]], kinds, strict=True) if k in ELONGATED])
+    sched, gen = training_scheduler(cfg.train_timesteps, cfg.prediction), torch.Generator().manual_seed(0)
+    print(f"{len(starts)} elongated episodes of {demos}; {cfg.prediction} prediction")
+    for step in (0, 5):
+        batch = data.batch(starts + step)
+        flipped = batch.action.clone()
+        flipped[..., 6] *= -1
+        chunks = {"the expert's": batch.action, "the flipped": flipped}
+        with torch.no_grad():
+            obs = net.encode(batch.depth, batch.state)
+            for t in DECIDES_T:
+                noise = torch.randn(batch.action.shape, generator=gen)
+                agree = [f"{name} chunk noised {turns_agree(net, sched, obs, c, noise, t, batch.action):.2f}"
+                         for name, c in chunks.items()]
+                print(f"step {step}, t={t} (signal {sched.alphas_cumprod[t].sqrt():.3f}): first turn the "
+                      f"expert's way from " + ", from ".join(agree), flush=True)
+
+
+def turns_agree(net, sched, obs, chunk, noise, t: int, expert) -> float:
+    """How often the first wrist action of the network's clean estimate from ``chunk`` (env units) noised to
+    ``t`` turns the way the ``expert``'s chunk does."""
+    import torch
+
+    from trainer.student.ddim import clean_and_noise
+
+    a, k = sched.alphas_cumprod[t], torch.full((len(chunk),), t)
+    noisy = sched.add_noise(net.action_norm.normalise(chunk), noise, k)
+    x0, _ = clean_and_noise(noisy, net(noisy, k, obs), a.sqrt(), (1 - a).sqrt(), net.config.prediction)
+    first = net.action_norm.unnormalise(x0.clamp(-1, 1))[:, 0, 6]
+    return float((torch.sign(first) == torch.sign(expert[:, 0, 6])).float().mean())
+
+
 class ObjectEstimate:
     """A student checkpoint's training-only object head, read in metres over an episode's frames."""
 
@@ -371,21 +424,25 @@ def parts(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("what", choices=["tolerance", "spread", "dart", "descent", "locate", "parts", "turn",
-                                    "copycat"])
+                                    "copycat", "decides"])
     p.add_argument("policy", nargs="?", default="scripted",
                    help="a trainer policy spec (spread, descent, locate, parts, turn)")
     p.add_argument("--checkpoint", help="locate, parts: the student checkpoint whose object head is "
-                   "measured; copycat: a yaw-reading student's, how well it reads the yaw and if it uses it")
-    p.add_argument("--demos", help="copycat: the demo store whose frames and states the student is run on")
-    p.add_argument("--episodes", type=int, default=30)
+                   "measured; copycat: a yaw-reading student's, how well it reads the yaw and if it uses it; "
+                   "decides: the student whose denoiser is read")
+    p.add_argument("--demos", help="copycat, decides: the demo store whose frames and states the student is "
+                   "run on")
+    p.add_argument("--episodes", type=int, default=30, help="episodes to run (decides: of --demos, 0 = all)")
     p.add_argument("--sensor", default="clean",
                    help="locate, parts, turn: the sensor the policy sees (as evaluate's: clean, stereo, ...)")
     p.add_argument("--sigma", type=float, nargs="+", default=[0.0, 0.3], help="dart: action noise levels")
     args = p.parse_args()
     if args.what in ("locate", "parts") and not args.checkpoint:
         p.error(f"{args.what} needs --checkpoint (the student whose object head is measured)")
-    if args.what == "copycat" and not args.demos:
-        p.error("copycat needs --demos (the demo store to run the student on)")
+    if args.what in ("copycat", "decides") and not args.demos:
+        p.error(f"{args.what} needs --demos (the demo store to run the student on)")
+    if args.what == "decides" and not args.checkpoint:
+        p.error("decides needs --checkpoint (the student whose denoiser is read)")
     if args.what == "tolerance":
         tolerance(args.episodes)
     elif args.what == "dart":
@@ -396,6 +453,8 @@ def main() -> None:
         turn(args.policy, args.episodes, args.sensor)
     elif args.what == "copycat":
         copycat(args.policy, args.demos, args.checkpoint)
+    elif args.what == "decides":
+        decides(args.checkpoint, args.demos, args.episodes)
     elif args.what in ("locate", "parts"):
         (locate if args.what == "locate" else parts)(args.policy, args.checkpoint, args.episodes, args.sensor)
     else:

@@ -72,11 +72,17 @@ def ddim_plan(train_timesteps: int, steps: int, spacing: str = "leading") -> lis
     return plan
 
 
-def ddim_update(sample: torch.Tensor, output: torch.Tensor, step: DdimStep, prediction: str) -> torch.Tensor:
-    """One eta=0 DDIM step x_t -> x_{t-stride} from the network's output (noise or velocity)."""
+def clean_and_noise(sample: torch.Tensor, output: torch.Tensor, sqrt_alpha: float | torch.Tensor,
+                    sqrt_one_minus_alpha: float | torch.Tensor,
+                    prediction: str) -> tuple[torch.Tensor, torch.Tensor]:
+    """The clean chunk and the noise that the network's output (noise or velocity) says make up ``sample``."""
     if prediction == "epsilon":
-        x0, eps = (sample - step.sqrt_one_minus_alpha * output) / step.sqrt_alpha, output
-    else:  # v = sqrt(alpha) eps - sqrt(1 - alpha) x0: at pure noise it is -x0, read off the observation alone
-        x0 = step.sqrt_alpha * sample - step.sqrt_one_minus_alpha * output
-        eps = step.sqrt_alpha * output + step.sqrt_one_minus_alpha * sample
+        return (sample - sqrt_one_minus_alpha * output) / sqrt_alpha, output
+    # v = sqrt(alpha) eps - sqrt(1 - alpha) x0: at pure noise it is -x0, read off the observation alone
+    return sqrt_alpha * sample - sqrt_one_minus_alpha * output, sqrt_alpha * output + sqrt_one_minus_alpha * sample
+
+
+def ddim_update(sample: torch.Tensor, output: torch.Tensor, step: DdimStep, prediction: str) -> torch.Tensor:
+    """One eta=0 DDIM step x_t -> x_{t-stride} from the network's output."""
+    x0, eps = clean_and_noise(sample, output, step.sqrt_alpha, step.sqrt_one_minus_alpha, prediction)
     return step.sqrt_alpha_prev * x0.clamp(-1.0, 1.0) + step.sqrt_one_minus_alpha_prev * eps
