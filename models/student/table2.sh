@@ -530,4 +530,28 @@ keyframe() {  # docs/student.md "The wrist's turn": the best GT student fine-tun
     wrist_measures gt6k_hpokf_12k
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe [NAME...]}"
+velocity() {  # docs/student.md "The first step's turn": moredata's gt3k_hpos_36k again (on 2 threads: runs/ had
+    # been lost) beside the same student whose denoiser predicts the velocity; who decides the first turn in
+    # each denoiser, and wrist_measures with both DDIM spacings
+    demos_3k
+    local common="--demos runs/sim/demos_seen_3k.zarr --depth-source gt --object-loss 1 --steps 36000 --batch 32
+        --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 --ckpt-every 1000 $HPOS"
+    python -m trainer student fit $common --out runs/student/gt3k_hpos_36k
+    python -m trainer student fit $common --prediction v_prediction --out runs/student/gt3k_hpos_v_36k
+    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
+        --workers 2 --out runs/student/heldout_60.zarr
+    for name in gt3k_hpos_36k gt3k_hpos_v_36k; do
+        python models/student/diagnose.py decides --checkpoint "runs/student/$name/ckpt.pt" \
+            --demos runs/sim/demos_seen_3k.zarr --episodes 600 > "runs/table2/decides_$name.log" 2>&1
+        wrist_measures "$name"
+        python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --ddim-spacing trailing --exec-horizon 4 \
+            --out "runs/student/${name}_x4t.onnx"
+        for objects in seen unseen; do
+            cell "${name}_x4t" "runs/student/${name}_x4t.onnx" none clean "$objects" 180 runs/table2/key
+        done
+        python models/student/diagnose.py copycat "runs/student/${name}_x4t.onnx" \
+            --demos runs/student/heldout_60.zarr > "runs/table2/copycat_${name}_x4t.log" 2>&1
+    done
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity [NAME...]}"
