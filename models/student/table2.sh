@@ -532,7 +532,8 @@ keyframe() {  # docs/student.md "The wrist's turn": the best GT student fine-tun
 
 velocity() {  # docs/student.md "The first step's turn": moredata's gt3k_hpos_36k again (on 2 threads: runs/ had
     # been lost) beside the same student whose denoiser predicts the velocity; who decides the first turn in
-    # each denoiser, and wrist_measures with both DDIM spacings
+    # each denoiser, and wrist_measures with both DDIM spacings. Run in part on 2026-11-25: the fits, decides, both
+    # _x4 files' clean cells, gt3k_hpos_v_36k_x4t's seen cell and gt3k_hpos_36k_x4's copycat; not yet the rest
     demos_3k
     local common="--demos runs/sim/demos_seen_3k.zarr --depth-source gt --object-loss 1 --steps 36000 --batch 32
         --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 --ckpt-every 1000 $HPOS"
@@ -554,4 +555,17 @@ velocity() {  # docs/student.md "The first step's turn": moredata's gt3k_hpos_36
     done
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity [NAME...]}"
+velocity_yaw() {  # docs/student.md "The first step's turn": both velocity students fine-tuned 12000 steps with a yaw
+    # reading (--seen-yaw: its new state inputs start at zero weight), one thread each, side by side; who decides
+    finetune gt3k_hposy_v_12k runs/sim/demos_seen_3k.zarr gt 1 $HPOS --seen-yaw --steps 12000 \
+        --prediction v_prediction --init runs/student/gt3k_hpos_v_36k/ckpt.pt &
+    finetune gt3k_hposy_12k runs/sim/demos_seen_3k.zarr gt 1 $HPOS --seen-yaw --steps 12000 \
+        --init runs/student/gt3k_hpos_36k/ckpt.pt
+    wait
+    for name in gt3k_hposy_12k gt3k_hposy_v_12k; do
+        python models/student/diagnose.py decides --checkpoint "runs/student/$name/ckpt.pt" \
+            --demos runs/sim/demos_seen_3k.zarr --episodes 600 > "runs/table2/decides_$name.log" 2>&1
+    done
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw [NAME...]}"
