@@ -79,7 +79,8 @@ def clean_and_noise(sample: torch.Tensor, output: torch.Tensor, sqrt_alpha: floa
     if prediction == "epsilon":
         return (sample - sqrt_one_minus_alpha * output) / sqrt_alpha, output
     # v = sqrt(alpha) eps - sqrt(1 - alpha) x0: at pure noise it is -x0, read off the observation alone
-    return sqrt_alpha * sample - sqrt_one_minus_alpha * output, sqrt_alpha * output + sqrt_one_minus_alpha * sample
+    clean = sqrt_alpha * sample - sqrt_one_minus_alpha * output
+    return clean, sqrt_alpha * output + sqrt_one_minus_alpha * sample
 
 
 def ddim_update(sample: torch.Tensor, output: torch.Tensor, step: DdimStep, prediction: str) -> torch.Tensor:
