@@ -21,7 +21,8 @@ TINY = ["--width", "8", "--head-dims", "32", "64", "--state-features", "16", "--
 
 def denoising_error(net: StudentPolicy, data: DemoDataset, steps=(30, 60, 84)) -> float:
     """Mean eq. 10 loss over all samples at fixed diffusion steps with fixed noise."""
-    batch, sched = data.batch(np.arange(len(data))), training_scheduler(net.config.train_timesteps, net.config.prediction)
+    batch = data.batch(np.arange(len(data)))
+    sched = training_scheduler(net.config.train_timesteps, net.config.prediction)
     clean = net.action_norm.normalise(batch.action)
     errors = []
     with torch.no_grad():
