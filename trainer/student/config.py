@@ -40,9 +40,9 @@ class StudentConfig:
     prediction: str = "epsilon"
     """What the denoiser predicts: "epsilon" (the noise, as diffusion_policy) or "v_prediction" (the velocity
     sqrt(a) noise - sqrt(1 - a) actions, Salimans & Ho 2022). Where the sample is nearly pure noise the
-    epsilon loss barely weighs the actions, so a decision that a chunk makes visible in its own noisy sample
-    (which way to turn the wrist) need not be learnt from the observation; the velocity there is the actions
-    themselves (docs/student.md "The first step's turn")."""
+    epsilon loss barely weighs the actions; the velocity's loss there is the actions themselves, so the
+    network must read them off its observation (measured: it does, where the observation shows them; it did
+    not learn the first step's turn; docs/student.md "The first step's turn")."""
     hand_target: bool = False
     """The training-only object head also reads, from depth, where the hand is relative to the object:
     object minus grasp site in x, y and the grasp site's height above the table (3 more outputs)."""
