@@ -25,10 +25,11 @@ from torch import nn
 
 from hil_sim.objects import GROUPS
 from trainer.dataset import DemoStore
+from trainer.diffusion import training_target
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, run_episode
 from trainer.student.config import StudentConfig
-from trainer.student.ddim import ddim_plan, ddim_update, denoising_target, training_scheduler
+from trainer.student.ddim import ddim_plan, ddim_update, training_scheduler
 from trainer.student.model import StudentPolicy, hand_pose
 from trainer.student.train import ema_update
 
@@ -104,7 +105,7 @@ def fit(args: argparse.Namespace) -> None:
         k = torch.randint(0, config.train_timesteps, (args.batch,), generator=gen)
         obs = net.obs(torch.from_numpy(facts[i]), torch.from_numpy(state[i]))
         loss = nn.functional.mse_loss(net.student(scheduler.add_noise(clean, noise, k), k, obs),
-                                      denoising_target(scheduler, clean, noise, k))
+                                      training_target(scheduler, clean, noise, k))
         optim.zero_grad()
         loss.backward()
         optim.step()

@@ -6,7 +6,8 @@ import torch
 
 from trainer.ddg.bank import save_bank
 from trainer.ddg.model import UNetConfig, build_unet, ddpm_scheduler
-from trainer.ddg.train import FitConfig, fit, train_step, training_target
+from trainer.ddg.train import FitConfig, fit, train_step
+from trainer.diffusion import training_target
 
 from .conftest import scene
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 import pytest
 import torch
 
+from trainer.diffusion import training_target
 from trainer.student.config import PREDICTIONS
 from trainer.student.ddim import (
     DdimError,
     ddim_plan,
     ddim_update,
-    denoising_target,
     reference_scheduler,
     training_scheduler,
 )
@@ -66,7 +66,7 @@ def test_perfect_prediction_recovers_the_clean_chunk(steps, spacing, prediction)
     plan, training = ddim_plan(100, steps, spacing), training_scheduler(100, prediction)
     for step in plan:
         eps = (x - step.sqrt_alpha * x0) / step.sqrt_one_minus_alpha
-        ideal = denoising_target(training, x0, eps, torch.tensor([step.timestep]))
+        ideal = training_target(training, x0, eps, torch.tensor([step.timestep]))
         x = ddim_update(x, ideal, step, prediction)
     # float32 rounding of eps is magnified 1/sqrt(alpha) in the first x0 estimate: 2000x at t = 99
     torch.testing.assert_close(x, x0, atol=max(1e-5, 3e-7 / plan[0].sqrt_alpha), rtol=0)

@@ -9,6 +9,7 @@ import torch
 
 from runtime.preprocess import DepthSpec
 from tests.conftest import write_synthetic_demos
+from trainer.diffusion import training_target
 from trainer.student import checkpoint
 from trainer.student.data import DemoDataset
 from trainer.student.ddim import training_scheduler
@@ -30,7 +31,8 @@ def denoising_error(net: StudentPolicy, data: DemoDataset, steps=(30, 60, 84)) -
         for k in steps:
             noise = torch.randn(clean.shape, generator=torch.Generator().manual_seed(k))
             kk = torch.full((len(clean),), k)
-            errors.append(float(torch.mean((net(sched.add_noise(clean, noise, kk), kk, obs) - noise) ** 2)))
+            target = training_target(sched, clean, noise, kk)
+            errors.append(float(torch.mean((net(sched.add_noise(clean, noise, kk), kk, obs) - target) ** 2)))
     return float(np.mean(errors))
 
 

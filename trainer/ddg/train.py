@@ -16,6 +16,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from trainer.diffusion import training_target
+
 from .bank import (
     BankConfig,
     bank_prior,
@@ -141,11 +143,6 @@ def train_step(unet: torch.nn.Module, opt: torch.optim.Optimizer, noise_sched, x
     torch.nn.utils.clip_grad_norm_(unet.parameters(), 1.0)
     opt.step()
     return loss.item()
-
-
-def training_target(noise_sched, x0: torch.Tensor, eps: torch.Tensor, k: torch.Tensor) -> torch.Tensor:
-    """What the network must output for x_k = add_noise(x0, eps, k): eps, or v for a v-prediction model."""
-    return eps if noise_sched.config.prediction_type == "epsilon" else noise_sched.get_velocity(x0, eps, k)
 
 
 def _patches(x0: torch.Tensor, c: torch.Tensor, patch: tuple[int, ...], g: torch.Generator

@@ -28,15 +28,6 @@ def training_scheduler(train_timesteps: int, prediction: str) -> DDPMScheduler:
     return DDPMScheduler(num_train_timesteps=train_timesteps, prediction_type=prediction, **_SCHEDULE)
 
 
-def denoising_target(scheduler: DDPMScheduler, clean: torch.Tensor, noise: torch.Tensor,
-                     steps: torch.Tensor) -> torch.Tensor:
-    """What the network learns to output for ``scheduler.add_noise(clean, noise, steps)`` (paper eq. 10's
-    epsilon, or the velocity)."""
-    if scheduler.config.prediction_type == "epsilon":
-        return noise
-    return scheduler.get_velocity(clean, noise, steps)
-
-
 def reference_scheduler(train_timesteps: int, steps: int, spacing: str = "leading",
                         prediction: str = "epsilon") -> DDIMScheduler:
     """diffusers' DDIM with ``steps`` inference steps: the reference our unrolled update must match."""

@@ -24,12 +24,13 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
+from trainer.diffusion import training_target
 from trainer.student import checkpoint
 from trainer.student.argspec import add_dataclass_args, from_args
 from trainer.student.checkpoint import Checkpoint, TrainingInfo
 from trainer.student.config import StudentConfig
 from trainer.student.data import DEPTH_ARRAYS, Batch, DemoDataset
-from trainer.student.ddim import denoising_target, training_scheduler
+from trainer.student.ddim import training_scheduler
 from trainer.student.model import StudentPolicy
 
 CKPT_NAME = "ckpt.pt"
@@ -114,7 +115,7 @@ class DenoisingLoss(nn.Module):
         noisy = self.scheduler.add_noise(clean, noise, k)
         features = self.policy.encoder(batch.depth)
         obs = self.policy.fuse(features, batch.state)
-        target = denoising_target(self.scheduler, clean, noise, k)
+        target = training_target(self.scheduler, clean, noise, k)
         denoising = nn.functional.mse_loss(self.policy(noisy, k, obs), target)
         if not self.object_weight:
             return denoising, denoising
