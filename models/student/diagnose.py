@@ -258,6 +258,12 @@ class YawReading:
                f"{w[:-2].mean():.3f} on its other inputs"
 
 
+def elongated_starts(data, store) -> np.ndarray:
+    """The first steps of the banana and block episodes among ``data``'s (a ``DemoDataset`` of ``store``)."""
+    kinds = [str(k) for k in store.root["meta/kind"][: len(data.ends)]]
+    return np.array([s for s, k in zip(np.r_[0, data.ends[:-1]], kinds, strict=True) if k in ELONGATED], int)
+
+
 def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
     from trainer.dataset import DemoStore
     from trainer.student.data import DemoDataset, privileged_targets
@@ -267,8 +273,7 @@ def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
     policy = StudentOnnxPolicy(policy_path)
     data = DemoDataset(demos, "gt", policy.meta.obs_horizon, policy.meta.action_horizon)
     store = DemoStore.open(demos)
-    kinds = [str(k) for k in store.root["meta/kind"][:]]
-    starts = [int(s) for s, k in zip(np.r_[0, data.ends[:-1]], kinds, strict=True) if k in ELONGATED]
+    starts = elongated_starts(data, store)
     doubled_yaw = privileged_targets(store, True, len(data), "fingers")[:, 5:7]
     reading = None if ckpt_path is None else YawReading(ckpt_path)
     rng = np.random.default_rng(0)
@@ -308,8 +313,7 @@ def decides(ckpt_path: str, demos: str, episodes: int) -> None:
     net = checkpoint.load(Path(ckpt_path)).policy().eval()
     cfg = net.config
     data = DemoDataset(demos, "gt", cfg.obs_horizon, cfg.action_horizon, episodes=episodes)
-    kinds = [str(k) for k in DemoStore.open(demos).root["meta/kind"][: len(data.ends)]]
-    starts = np.array([s for s, k in zip(np.r_[0, data.ends[:-1]], kinds, strict=True) if k in ELONGATED])
+    starts = elongated_starts(data, DemoStore.open(demos))
     sched, gen = training_scheduler(cfg.train_timesteps, cfg.prediction), torch.Generator().manual_seed(0)
     print(f"{len(starts)} elongated episodes of {demos}; {cfg.prediction} prediction")
     for step in (0, 5):
