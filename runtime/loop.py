@@ -169,7 +169,7 @@ class ControlLoop:
         self.metrics = metrics
         self.stop = stop or threading.Event()
         self.spec = policy.metadata.preprocess
-        self.stack = FrameStack(policy.metadata.obs_horizon)
+        self.stack = FrameStack(policy.metadata.obs_horizon, policy.metadata.first_frame)
         self.counts = {"ticks": 0, "late": 0, "skipped": 0, "stale_frames": 0, "nan_actions": 0}
         self.faults: dict[str, float] = {}
         """Active fault code -> monotonic time it began."""
@@ -328,9 +328,9 @@ class ControlLoop:
 
     def _hold_tick(self, tick: Tick) -> Tick:
         """Command hold - the position latched when the fault began, gripper unchanged - and forget the
-        chunk and the frame history, which the fault made stale."""
+        chunk and the frame history, which the fault made stale (not the episode's first frame: the scene)."""
         self._chunk = None
-        self.stack.reset()
+        self.stack.reset(keep_first=True)
         tick.hold = True
         return self._send(tick, self._hold_target(), self._hold_gripper())
 

@@ -36,6 +36,9 @@ class PolicyMetadata:
     """``s`` of paper eq. 1, already applied to the 7 joint deltas the graph outputs (radians)."""
     obs_horizon: int = 3
     """Depth frames stacked in the ``depth`` input, oldest first."""
+    first_frame: bool = False
+    """The ``depth`` input leads with the episode's first frame, before the last ``obs_horizon`` ones
+    (``FrameStack``); files from before this field had none."""
     action_horizon: int = 16
     """Ha: actions predicted per inference."""
     exec_horizon: int = 8
@@ -70,6 +73,8 @@ class PolicyMetadata:
         for name in ("obs_horizon", "ddim_steps", "state_dim", "action_dim"):
             if not getattr(self, name) >= 1:
                 raise MetadataError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not isinstance(self.first_frame, bool):
+            raise MetadataError(f"first_frame must be true or false, got {self.first_frame!r}")
         if self.ddim_spacing not in DDIM_SPACINGS:
             raise MetadataError(f"ddim_spacing must be one of {DDIM_SPACINGS}, got {self.ddim_spacing!r}")
         if not all(math.isfinite(x) for x in self.joint_offset_rad):
@@ -78,7 +83,7 @@ class PolicyMetadata:
     def input_shapes(self) -> dict[str, list[int]]:
         """Static graph input shapes, batch 1."""
         spec = self.preprocess
-        return {"depth": [1, self.obs_horizon, spec.out_height, spec.out_width],
+        return {"depth": [1, self.obs_horizon + self.first_frame, spec.out_height, spec.out_width],
                 "state": [1, self.state_dim],
                 "noise": [1, self.action_horizon, self.action_dim]}
 

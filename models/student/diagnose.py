@@ -271,7 +271,7 @@ def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
     from trainer.student.probe import env_chunk
 
     policy = StudentOnnxPolicy(policy_path)
-    data = DemoDataset(demos, "gt", policy.meta.obs_horizon, policy.meta.action_horizon)
+    data = DemoDataset.stacked_as(demos, "gt", policy.meta)
     store = DemoStore.open(demos)
     starts = elongated_starts(data, store)
     doubled_yaw = privileged_targets(store, True, len(data), "fingers")[:, 5:7]
@@ -312,7 +312,7 @@ def decides(ckpt_path: str, demos: str, episodes: int) -> None:
 
     net = checkpoint.load(Path(ckpt_path)).policy().eval()
     cfg = net.config
-    data = DemoDataset(demos, "gt", cfg.obs_horizon, cfg.action_horizon, episodes=episodes)
+    data = DemoDataset.stacked_as(demos, "gt", cfg, episodes=episodes)
     starts = elongated_starts(data, DemoStore.open(demos))
     sched, gen = training_scheduler(cfg.train_timesteps, cfg.prediction), torch.Generator().manual_seed(0)
     print(f"{len(starts)} elongated episodes of {demos}; {cfg.prediction} prediction")
@@ -363,7 +363,8 @@ class ObjectEstimate:
         from runtime.preprocess import FrameStack, normalise
         from trainer.dataset import DEPTH_SCALE
 
-        history = FrameStack(self.ckpt.config.obs_horizon)  # the runtime's stacking rule
+        cfg = self.ckpt.config
+        history = FrameStack(cfg.obs_horizon, cfg.first_frame)  # the runtime's stacking rule
         stacks = np.stack([history.push(normalise(frame, DEPTH_SCALE, self.ckpt.info.depth_spec))
                            for frame in frames])
         with torch.no_grad():

@@ -568,4 +568,14 @@ velocity_yaw() {  # docs/student.md "The first step's turn": both velocity stude
     done
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw [NAME...]}"
+firstframe() {  # docs/student.md "The episode's first frame": velocity's v-prediction student again with the episode's
+    # first depth frame stacked before the last three (the object before the hand covers it), then `measure`;
+    # the same measures of gt3k_hpos_v_36k beside it
+    python -m trainer student fit --demos runs/sim/demos_seen_3k.zarr --depth-source gt --object-loss 1 \
+        --steps 36000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 \
+        --ckpt-every 1000 $HPOS --prediction v_prediction --first-frame --out runs/student/gt3k_hposf_v_36k
+    measure gt3k_hposf_v_36k runs/sim/demos_seen_3k.zarr
+    measure gt3k_hpos_v_36k runs/sim/demos_seen_3k.zarr
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe [NAME...]}"

@@ -19,6 +19,7 @@ def test_round_trip():
     (lambda d: d | {"surprise": 1}, "unknown"),
     (lambda d: d | {"preprocess": {"near_m": 3.0}}, "near_m"),
     (lambda d: d | {"ddim_spacing": "linspace"}, "ddim_spacing"),
+    (lambda d: d | {"first_frame": 1}, "first_frame"),
 ])
 def test_bad_metadata_is_refused(edit, match):
     d = json.loads(PolicyMetadata(preprocess=DepthSpec()).to_json())
@@ -30,6 +31,13 @@ def test_files_from_before_the_spacing_field_read_as_leading():
     d = json.loads(PolicyMetadata(preprocess=DepthSpec(), ddim_spacing="trailing").to_json())
     del d["ddim_spacing"]
     assert PolicyMetadata.from_json(json.dumps(d)).ddim_spacing == "leading"
+
+
+def test_the_first_frame_is_one_more_depth_channel_and_older_files_have_none():
+    d = json.loads(PolicyMetadata(preprocess=DepthSpec(), first_frame=True).to_json())
+    assert PolicyMetadata.from_json(json.dumps(d)).input_shapes()["depth"] == [1, 4, 96, 128]
+    del d["first_frame"]
+    assert PolicyMetadata.from_json(json.dumps(d)).input_shapes()["depth"] == [1, 3, 96, 128]
 
 
 def test_not_json():

@@ -100,14 +100,16 @@ class FakePolicy:
         self.delay, self.nan_calls = delay, nan_calls
         self.calls = 0
         self.states: list[np.ndarray] = []
+        self.depths: list[np.ndarray] = []
 
     def warmup(self, runs: int = 5) -> list[float]:
         return [self.delay] * runs
 
     def __call__(self, depth: np.ndarray, state: np.ndarray) -> np.ndarray:
-        assert depth.shape == (3, 96, 128) and state.shape == (DOF + 1,)
+        assert depth.shape == tuple(self.metadata.input_shapes()["depth"][1:]) and state.shape == (DOF + 1,)
         self.calls += 1
         self.states.append(state.copy())
+        self.depths.append(depth.copy())
         self.clock.sleep(self.delay)
         if self.calls in self.nan_calls:
             raise NanActionError("fake produced NaN")

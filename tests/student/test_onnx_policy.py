@@ -56,3 +56,26 @@ def test_only_the_frames_an_inference_stacks_are_made_and_the_inputs_are_unchang
         t = k * execute
         expected = [frames[max(0, t - j)] for j in range(horizon - 1, -1, -1)]
         np.testing.assert_array_equal(stack, [normalise(d, 0.001, policy.meta.preprocess) for d in expected])
+
+
+def test_a_first_frame_student_leads_every_stack_with_the_episodes_first_frame(tmp_path):
+    from export.__main__ import main as export_main
+    from tests.conftest import TINY_STUDENT
+    from trainer.student.cli import main as student_main
+
+    ckpt, out = tmp_path / "first.pt", tmp_path / "first.onnx"
+    assert student_main(["init", "--out", str(ckpt), "--first-frame", *TINY_STUDENT]) == 0
+    assert export_main([str(ckpt), "--ddim-steps", "1", "--out", str(out)]) == 0
+    policy = make_policy(f"student:{out}")
+    stacks = []
+    inner = policy.runtime.__call__
+    policy.runtime = lambda depth, state: stacks.append(depth.copy()) or inner(depth, state)
+    for episode in range(2):
+        policy.reset({})
+        frames = [observation(np.random.default_rng(10 * episode + i)).depth for i in range(9)]
+        for frame in frames:
+            policy.act(Observation(np.zeros(40, np.float32), frame, np.zeros(8, np.float32)))
+        first = normalise(frames[0], 0.001, policy.meta.preprocess)
+        np.testing.assert_array_equal(stacks[-1][0], first)  # step 8's stack, the first frame's 8 steps old
+        np.testing.assert_array_equal(stacks[-1][-1], normalise(frames[8], 0.001, policy.meta.preprocess))
+    assert len(stacks) == 4 and stacks[-1].shape == (4, 96, 128)

@@ -10,23 +10,25 @@ from trainer.dataset import DemoStore
 from trainer.student.data import DemoDataError, DemoDataset
 
 
-def runtime_stacks(store_path, episode: int) -> tuple[np.ndarray, np.ndarray]:
+def runtime_stacks(store_path, episode: int, first_frame: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Replay one episode the way the runtime sees it: frame by frame through normalise + FrameStack."""
     store = DemoStore.open(store_path)
     ep, attrs = store.episode(episode), store.attrs
-    stack = FrameStack(3)
+    stack = FrameStack(3, first_frame)
     frames = [stack.push(normalise(d, attrs["depth_scale"], store.depth_spec)) for d in ep["depth"]]
     return np.stack(frames), ep["state"]
 
 
+@pytest.mark.parametrize("first_frame", [False, True])
 @pytest.mark.parametrize("episode", [0, 1])
-def test_training_samples_equal_runtime_inputs(tiny_demos, episode):
-    data = DemoDataset(tiny_demos, "gt", obs_horizon=3, action_horizon=16)
-    expected, states = runtime_stacks(tiny_demos, episode)
+def test_training_samples_equal_runtime_inputs(tiny_demos, episode, first_frame):
+    data = DemoDataset(tiny_demos, "gt", obs_horizon=3, action_horizon=16, first_frame=first_frame)
+    expected, states = runtime_stacks(tiny_demos, episode, first_frame)
     first = 0 if episode == 0 else int(data.ends[episode - 1])
     batch = data.batch(np.arange(first, first + len(expected)))
     got = batch.depth.numpy()
     assert got.dtype == expected.dtype == np.float32
+    assert got.shape[1] == 3 + first_frame
     assert np.array_equal(got, expected)  # bit-exact, holes (-1) included
     assert (got == -1).any()
     assert np.array_equal(batch.state.numpy(), states)

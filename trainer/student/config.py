@@ -23,6 +23,10 @@ class StudentConfig:
     """Learned keypoints of the encoder's spatial-softmax pooling (robomimic / diffusion_policy: 32)."""
     obs_horizon: int = 3
     """Depth frames stacked as input channels, oldest first."""
+    first_frame: bool = False
+    """The episode's first depth frame is stacked before the last ``obs_horizon`` ones: the object as the
+    camera saw it before the hand came near and covered it, which the last 0.3 s cannot recall
+    (docs/student.md "The episode's first frame")."""
     action_horizon: int = 16
     """Ha: actions predicted per inference."""
     exec_horizon: int = 8
@@ -72,6 +76,11 @@ class StudentConfig:
     frame by the hand pose: the yaw from the fingers that ``seen_turn`` asks of the head itself, which depth
     cannot show where the fingers are out of view and the wrist may start anywhere (``trainer collect
     --wrist-noise``). Then part of the exported graph."""
+
+    @property
+    def depth_channels(self) -> int:
+        """Depth frames in the encoder's input: the last ``obs_horizon``, after the first one if kept."""
+        return self.obs_horizon + self.first_frame
 
     @property
     def yaw_target(self) -> str:

@@ -61,11 +61,12 @@ class DemoDataset:
 
     def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int,
                  hand_target: bool = False, target_reference: np.ndarray | None = None,
-                 episodes: int = 0, turn: str = "") -> None:
+                 episodes: int = 0, turn: str = "", first_frame: bool = False) -> None:
         """``target_reference``: the privileged targets whose mean and std standardise this store's (default:
         its own); a store that only trains the object head is standardised like the training demos.
         ``episodes``: only the store's first this many (0 = all). ``hand_target``, ``turn``: the privileged
-        targets' columns (``privileged_targets``)."""
+        targets' columns (``privileged_targets``). ``first_frame``: each stack starts with its episode's first
+        frame (``StudentConfig.first_frame``)."""
         if depth_source not in DEPTH_ARRAYS:
             raise DemoDataError(f"unknown depth source {depth_source!r}; "
                                 f"choose one of {sorted(DEPTH_ARRAYS)}")
@@ -87,6 +88,7 @@ class DemoDataset:
         self.control_rate_hz = float(attrs["control_rate_hz"])
         self.depth_source, self.path = depth_source, Path(path)
         self.obs_horizon, self.action_horizon = obs_horizon, action_horizon
+        self.first_frame = first_frame
         self.augment = frame_augmenter(depth_source)
         starts = np.concatenate([[0], self.ends[:-1]])
         steps_per_ep = self.ends - starts
@@ -96,12 +98,21 @@ class DemoDataset:
         reference = self.raw_targets if target_reference is None else target_reference
         self.targets = None if self.raw_targets is None else standardise(self.raw_targets, reference)
 
+    @classmethod
+    def stacked_as(cls, path: str | Path, depth_source: str, policy, **kwargs) -> DemoDataset:
+        """The store's steps stacked as ``policy`` reads them: its ``StudentConfig`` or its file's
+        ``PolicyMetadata`` (``obs_horizon``, ``first_frame``, ``action_horizon``)."""
+        return cls(path, depth_source, policy.obs_horizon, policy.action_horizon,
+                   first_frame=policy.first_frame, **kwargs)
+
     def __len__(self) -> int:
         return len(self.action)
 
     def frame_indices(self, i: int) -> np.ndarray:
-        """Steps of the depth frames stacked at step ``i``, oldest first, clamped to the episode start."""
-        return np.maximum(np.arange(i - self.obs_horizon + 1, i + 1), self._start[i])
+        """Steps of the depth frames stacked at step ``i``, oldest first, clamped to the episode start (which
+        leads them with ``first_frame``)."""
+        recent = np.maximum(np.arange(i - self.obs_horizon + 1, i + 1), self._start[i])
+        return np.r_[self._start[i], recent] if self.first_frame else recent
 
     def action_indices(self, i: int) -> np.ndarray:
         return np.minimum(np.arange(i, i + self.action_horizon), self._end[i] - 1)

@@ -206,7 +206,7 @@ class StudentPolicy(nn.Module):
         self.offset_norm = RangeNormaliser(2) if config.object_offset else None
         self.yaw_norm = RangeNormaliser(2) if config.seen_yaw else None
         """``seen_yaw``: the object head's yaw units -> cos and sin of twice the yaw, as ``object_norm``."""
-        self.encoder = ResNet18(config.obs_horizon, config.width, config.keypoints)
+        self.encoder = ResNet18(config.depth_channels, config.width, config.keypoints)
         self.state_mlp = nn.Sequential(nn.Linear(state_inputs(config), config.state_features),
                                        nn.ReLU(), nn.Linear(config.state_features, config.state_features))
         obs_dim = self.encoder.out_features + config.state_features

@@ -39,7 +39,7 @@ from trainer.student.onnx_policy import StudentOnnxPolicy, to_env_actions
 def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
     policy = StudentOnnxPolicy(policy_path)
     meta = policy.meta
-    data = DemoDataset(demos, depth_source, meta.obs_horizon, meta.action_horizon)
+    data = DemoDataset.stacked_as(demos, depth_source, meta)
     steps = np.arange(0, len(data), every)
     stacks = [data.depth_stack(int(i)) for i in steps]
     other = np.roll(np.arange(len(steps)), len(steps) // 2)  # each step paired with a distant one
@@ -80,7 +80,7 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     probed = privileged_targets(store, hand, turn=turn)
     if trained_on is None or probed is None:
         raise DemoDataError("object positions are not recorded in the training or the probed demos")
-    data = DemoDataset(demos, depth_source, ckpt.config.obs_horizon, ckpt.config.action_horizon)
+    data = DemoDataset.stacked_as(demos, depth_source, ckpt.config)
     steps = np.arange(0, len(data), every)
     net = ckpt.policy()
     with torch.no_grad():

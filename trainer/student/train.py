@@ -134,8 +134,9 @@ def object_frames(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset) -
         return None
     if not cfg.object_loss:
         raise FitError("--object-demos trains the object head: it needs --object-loss > 0")
-    extra = DemoDataset(cfg.object_demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
-                        model_cfg.hand_target, target_reference=data.raw_targets, turn=model_cfg.yaw_target)
+    extra = DemoDataset.stacked_as(cfg.object_demos, cfg.depth_source, model_cfg,
+                                   hand_target=model_cfg.hand_target, target_reference=data.raw_targets,
+                                   turn=model_cfg.yaw_target)
     if extra.targets is None:
         raise FitError(f"{cfg.object_demos} does not record object_xy for every episode")
     return extra
@@ -277,8 +278,8 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
         torch.set_num_threads(cfg.threads)
     if cfg.batch % world:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
-    data = DemoDataset(cfg.demos, cfg.depth_source, model_cfg.obs_horizon, model_cfg.action_horizon,
-                       model_cfg.hand_target, episodes=cfg.episodes, turn=model_cfg.yaw_target)
+    data = DemoDataset.stacked_as(cfg.demos, cfg.depth_source, model_cfg, hand_target=model_cfg.hand_target,
+                                  episodes=cfg.episodes, turn=model_cfg.yaw_target)
     if (model_cfg.object_offset or model_cfg.seen_offset or model_cfg.yaw_target) and not cfg.object_loss:
         raise FitError("--object-offset, --seen-offset, --seen-turn and --seen-yaw read the object head's "
                        "estimate: they need --object-loss > 0")
