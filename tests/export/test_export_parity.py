@@ -86,16 +86,10 @@ def test_check_refuses_a_foreign_checkpoint(untrained_student_onnx, tmp_path):
         run_check(untrained_student_onnx, other, repeats=1, trials=1, threads=1)
 
 
-def test_first_frame_student_exports_one_more_depth_channel(tmp_path):
+def test_first_frame_student_exports_one_more_depth_channel(first_frame_student_onnx):
     """A --first-frame student's graph reads the episode's first frame before the last three."""
-    from tests.conftest import TINY_STUDENT
-    from trainer.student.cli import main as student_main
-
-    ckpt, out = tmp_path / "first.pt", tmp_path / "first.onnx"
-    assert student_main(["init", "--out", str(ckpt), "--first-frame", *TINY_STUDENT]) == 0
-    assert export_main([str(ckpt), "--ddim-steps", "2", "--out", str(out)]) == 0
-    assert run_check(out, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
-    model = onnx.load(str(out))
+    assert run_check(first_frame_student_onnx, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
+    model = onnx.load(str(first_frame_student_onnx))
     meta = read_metadata(model)
     assert meta.first_frame and meta.input_shapes()["depth"] == [1, 4, 96, 128]
     assert [d.dim_value for d in model.graph.input[0].type.tensor_type.shape.dim] == [1, 4, 96, 128]

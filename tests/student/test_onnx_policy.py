@@ -58,15 +58,8 @@ def test_only_the_frames_an_inference_stacks_are_made_and_the_inputs_are_unchang
         np.testing.assert_array_equal(stack, [normalise(d, 0.001, policy.meta.preprocess) for d in expected])
 
 
-def test_a_first_frame_student_leads_every_stack_with_the_episodes_first_frame(tmp_path):
-    from export.__main__ import main as export_main
-    from tests.conftest import TINY_STUDENT
-    from trainer.student.cli import main as student_main
-
-    ckpt, out = tmp_path / "first.pt", tmp_path / "first.onnx"
-    assert student_main(["init", "--out", str(ckpt), "--first-frame", *TINY_STUDENT]) == 0
-    assert export_main([str(ckpt), "--ddim-steps", "1", "--out", str(out)]) == 0
-    policy = make_policy(f"student:{out}")
+def test_a_first_frame_student_leads_every_stack_with_the_episodes_first_frame(first_frame_student_onnx):
+    policy = make_policy(f"student:{first_frame_student_onnx}")
     stacks = []
     inner = policy.runtime.__call__
     policy.runtime = lambda depth, state: stacks.append(depth.copy()) or inner(depth, state)
