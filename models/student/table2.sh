@@ -570,7 +570,8 @@ velocity_yaw() {  # docs/student.md "The first step's turn": both velocity stude
 
 firstframe() {  # docs/student.md "The episode's first frame": velocity's v-prediction student again with the episode's
     # first depth frame stacked before the last three (the object before the hand covers it), then `measure`;
-    # the same measures of gt3k_hpos_v_36k beside it
+    # the same measures of gt3k_hpos_v_36k beside it. Run on 2026-11-25: it stopped at `locate` on a missing
+    # editable install; its cells, both `locate`s and the baseline's held-out probe ran by hand with these commands
     python -m trainer student fit --demos runs/sim/demos_seen_3k.zarr --depth-source gt --object-loss 1 \
         --steps 36000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 \
         --ckpt-every 1000 $HPOS --prediction v_prediction --first-frame --out runs/student/gt3k_hposf_v_36k
@@ -578,4 +579,18 @@ firstframe() {  # docs/student.md "The episode's first frame": velocity's v-pred
     measure gt3k_hpos_v_36k runs/sim/demos_seen_3k.zarr
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe [NAME...]}"
+ddgaf3k() {  # docs/student.md "The episode's first frame": ddga6k's two fine-tunes on DDG (a) depth of the first
+    # 1000 demos, from firstframe's student (velocity, first frame, 3000 demos), and its cells under both sensors
+    ddg_depth models/ddg runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_a.zarr
+    START=gt3k_hposf_v_36k fine_tunes ddgaf3k runs/sim/demos_seen_ddg_a.zarr ddg 2 --prediction v_prediction \
+        --first-frame
+    local sensor objects
+    for sensor in stereo clean; do
+        for objects in seen unseen; do
+            cell ddgaf3k_hpos_more_12k_x4 runs/student/ddgaf3k_hpos_more_12k_x4.onnx none "$sensor" "$objects" 180 \
+                runs/table2/key
+        done
+    done
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k [NAME...]}"
