@@ -167,9 +167,9 @@ class World:
         left += int(rng.integers(-r.crop_shift[1], r.crop_shift[1] + 1))
         top = int(np.clip(top, 0, self.spec.stream_height - self.spec.crop_height))
         left = int(np.clip(left, 0, self.spec.stream_width - self.spec.crop_width))
-        noise = rng.uniform(-r.init_joint_noise, r.init_joint_noise, n)
-        if r.wrist_noise != r.init_joint_noise:  # the same draw, rescaled: default episodes are unchanged
-            noise[6] *= r.wrist_noise / r.init_joint_noise
+        # One draw for every joint, scaled as numpy's uniform(-a, a) scales it: default episodes unchanged.
+        half = np.r_[np.full(n - 1, r.init_joint_noise), r.wrist_noise]
+        noise = -half + 2 * half * rng.random(n)
         q0 = np.asarray(HOME_Q) + noise
         return Episode(kind, seed, True, _round(xy), float(yaw), _round(q0), (top, left), _round(cam_pos),
                        _round(quat),
@@ -312,6 +312,14 @@ class World:
     def render_policy_rgb(self) -> np.ndarray:
         """uint8 RGB of the crop window at the policy resolution (as ``render_policy_depth``)."""
         return self.policy_camera.rgb(self.data)
+
+    def aim_camera(self, pos: np.ndarray, target: np.ndarray) -> None:
+        """Move the full-stream camera to ``pos`` looking at ``target`` (world frame, z up) until the next
+        ``reset``: views of the scene other than the robot's mount (the DDG metrics' matched views)."""
+        cam = self._ids.camera
+        self.model.cam_pos[cam] = pos
+        self.model.cam_quat[cam] = look_at_quat(np.asarray(pos, float), np.asarray(target, float))
+        mujoco.mj_forward(self.model, self.data)
 
     def camera_extrinsics(self) -> np.ndarray:
         """4x4 world-from-camera transform, OpenCV axes."""

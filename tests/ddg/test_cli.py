@@ -37,7 +37,10 @@ def test_bad_inputs_are_one_line_errors_for_every_command(tmp_path, capsys, tiny
              (["metrics", "--real", str(nan), "--subset", "all", "--model", ""], "depth holds 1 NaN/inf"),
              (["generate", "--demos", str(tmp_path / "s.zarr"), "--model", str(tiny_model)],
               "the model's resolution"),
-             (["generate", "--demos", str(tmp_path / "none.zarr")], "no demo store")]
+             (["generate", "--demos", str(tmp_path / "none.zarr")], "no demo store"),
+             (["metrics", "--judge", "colour", "--model", ""], "--judge must be one of both, depth, holes"),
+             (["metrics", "--views", "matched", "--demos", str(tmp_path / "s.zarr"), "--model", ""],
+              "a demo store holds the policy's view only")]
     for argv, message in cases:
         assert main(argv) == 2, argv
         err = capsys.readouterr().err.strip().splitlines()

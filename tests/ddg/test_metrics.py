@@ -1,10 +1,18 @@
 import numpy as np
+import pytest
 
 from runtime.preprocess import DepthSpec
 from trainer.ddg.features import RandomEncoder, encoder_input, features, fid, kid
 from trainer.ddg.holestats import hole_stats
 from trainer.ddg.metrics import bootstrap_ci
-from trainer.ddg.simframes import void_as_far
+from trainer.ddg.simframes import (
+    MATCHED_DISTANCE_M,
+    MATCHED_ELEVATION_DEG,
+    MAX_VOID_FRACTION,
+    matched_view,
+    rendered,
+    void_as_far,
+)
 
 from .conftest import scene
 
@@ -66,3 +74,41 @@ def test_void_as_far_fills_only_the_no_data_pixels():
     sim = np.array([[[0, 900], [1200, 0]]], np.uint16)
     out = void_as_far(sim, DepthSpec())
     assert out.dtype == np.uint16 and out.tolist() == [[[1500, 900], [1200, 1500]]]
+
+
+def test_the_judge_sees_one_channel_when_asked():
+    """``--judge holes`` hides the depth: frames with the same holes on other scenes look the same to it, and
+    ``--judge depth`` hides the mask (a hole still reads as 0 in the depth channel)."""
+    rng = np.random.default_rng(2)
+    a, b = np.stack([scene(rng) for _ in range(3)]), np.stack([scene(rng) for _ in range(3)])
+    a[:, 20:30, 40:70] = b[:, 20:30, 40:70] = 0
+    assert np.array_equal(features(a, channels="holes"), features(b, channels="holes"))
+    assert not np.array_equal(features(a, channels="both"), features(b, channels="both"))
+    x = encoder_input(a, "depth")
+    assert not x[:, 1].any() and x[0, 0, 50, 50] > 0 and x[0, 0, 25, 50] == 0
+    assert not encoder_input(a, "holes")[:, 0].any()
+    with pytest.raises(ValueError, match="channels must be one of"):
+        encoder_input(a, "colour")
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_matched_views_look_down_at_the_object_from_the_far_side(seed):
+    rng = np.random.default_rng(seed)
+    obj = np.array([0.5, 0.1, 0.78])
+    pos, target = matched_view(obj, rng)
+    offset = pos - target
+    dist, elev = np.linalg.norm(offset), np.rad2deg(np.arcsin(offset[2] / np.linalg.norm(offset)))
+    assert MATCHED_DISTANCE_M[0] <= dist <= MATCHED_DISTANCE_M[1]
+    assert MATCHED_ELEVATION_DEG[0] <= elev <= MATCHED_ELEVATION_DEG[1]
+    assert offset[0] >= 0 and np.all(np.abs(target[:2] - obj[:2]) <= 0.05) and target[2] == obj[2]
+
+
+def test_matched_frames_are_close_views_without_void_and_reproducible():
+    frames = rendered(6, seed=3, views="matched")
+    assert frames.shape == (6, 96, 128) and frames.dtype == np.uint16
+    assert all(np.mean(f == 0) <= MAX_VOID_FRACTION for f in frames)
+    medians = [np.median(f[f > 0]) for f in frames]
+    assert 400 <= min(medians) and max(medians) <= 1300  # the real captures' range, not the robot's 0.9-1.5 m
+    assert np.array_equal(rendered(6, seed=3, views="matched"), frames)
+    with pytest.raises(ValueError, match="views must be one of policy, matched"):
+        rendered(1, views="wrist")

@@ -78,3 +78,14 @@ def test_wrist_noise_widens_the_wrist_start_alone(world: World) -> None:
         assert max(np.abs(wrists)) <= 1.5 and np.ptp(wrists) > 0.5
     finally:
         wide.close()
+
+
+def test_wrist_noise_alone_when_the_other_joints_start_exactly_home() -> None:
+    """``init_joint_noise=0`` keeps joints 1-6 at home and still draws the wrist (it once divided by zero)."""
+    world = World(("banana",), randomisation=Randomisation(init_joint_noise=0.0, wrist_noise=1.0))
+    try:
+        wrists = [world.reset("banana", seed=s).q0 for s in range(4)]
+        assert all(q[:6] == HOME_Q[:6] for q in wrists)
+        assert all(abs(q[6] - HOME_Q[6]) <= 1.0 for q in wrists) and np.ptp([q[6] for q in wrists]) > 0.2
+    finally:
+        world.close()

@@ -40,8 +40,15 @@ class RandomEncoder(torch.nn.Module):
         return torch.cat(feats, dim=1)
 
 
-def encoder_input(depth_mm: np.ndarray) -> np.ndarray:
-    """uint16 mm [N, H, W] -> float32 [N, 2, H, W]: relative valid depth (0 at holes) and the hole mask."""
+JUDGE_CHANNELS = ("both", "depth", "holes")
+"""What the judge sees: both channels, or one with the other zeroed (the same frozen net either way)."""
+
+
+def encoder_input(depth_mm: np.ndarray, channels: str = "both") -> np.ndarray:
+    """uint16 mm [N, H, W] -> float32 [N, 2, H, W]: relative valid depth (0 at holes) and the hole mask;
+    ``channels`` = "depth" or "holes" zeroes the other one."""
+    if channels not in JUDGE_CHANNELS:
+        raise ValueError(f"channels must be one of {JUDGE_CHANNELS}, got {channels!r}")
     out = np.zeros((len(depth_mm), 2, *depth_mm.shape[1:]), np.float32)
     for i, d in enumerate(depth_mm):
         valid = d > 0
@@ -49,12 +56,15 @@ def encoder_input(depth_mm: np.ndarray) -> np.ndarray:
             lo, hi = np.percentile(d[valid], [1, 99])
             out[i, 0] = np.where(valid, np.clip((d - lo) / max(hi - lo, 1.0), 0, 1), 0)
         out[i, 1] = ~valid
+    if channels != "both":
+        out[:, 1 if channels == "depth" else 0] = 0
     return out
 
 
-def features(depth_mm: np.ndarray, encoder: RandomEncoder | None = None, batch: int = 128) -> np.ndarray:
+def features(depth_mm: np.ndarray, encoder: RandomEncoder | None = None, channels: str = "both",
+             batch: int = 128) -> np.ndarray:
     enc = encoder or RandomEncoder()
-    x = encoder_input(depth_mm)
+    x = encoder_input(depth_mm, channels)
     return np.concatenate([enc(torch.from_numpy(x[i:i + batch])).numpy() for i in range(0, len(x), batch)])
 
 

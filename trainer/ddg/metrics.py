@@ -22,7 +22,7 @@ import torch
 
 from .baselines import DEFAULT_MODEL, inpaint, randnoise
 from .data import POLICY_SPEC, RealDataError, load_real_dir, policy_crop, split
-from .features import RandomEncoder, features, fid, kid
+from .features import JUDGE_CHANNELS, RandomEncoder, features, fid, kid
 from .holestats import hole_stats
 from .plots import plot_grid, plot_holes, plot_tsne
 from .simframes import from_demos, rendered, void_as_far
@@ -54,16 +54,27 @@ class MetricsConfig:
     """Bootstrap replicates for the FID/KID 95% intervals (0 = none)."""
     threads: int = 2
     """torch and onnxruntime CPU threads."""
+    views: str = "policy"
+    """Simulated frames rendered (without --demos) from: policy (the robot's camera: the demos' view, with the
+    void past the table) or matched (close views of the object at the real captures' range, 0.5-1.0 m, where
+    the scene differs less from theirs; trainer.ddg.simframes)."""
+    judge: str = "both"
+    """What the judge sees: both (relative valid depth and the hole mask), holes (the hole mask alone: where
+    the artifacts fall, the scene's depth hidden) or depth (relative valid depth alone, a hole reading 0)."""
     void_as_far: bool = False
     """Diagnostic: give the simulated frames' "no data" pixels (in hil_sim's view: the void past the table,
     beyond the D455's range) the far depth before anything is judged, as if the world had a wall in range."""
 
 
 def run_metrics(cfg: MetricsConfig) -> dict:
+    _check(cfg)
     torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed)
     (ref, ref_groups), extra_real = _real_sets(cfg, rng)
-    sim = from_demos(cfg.demos, cfg.sim_frames) if cfg.demos else rendered(cfg.sim_frames, cfg.seed)
+    if cfg.demos:
+        sim = from_demos(cfg.demos, cfg.sim_frames)
+    else:
+        sim = rendered(cfg.sim_frames, cfg.seed, cfg.views)
     if cfg.void_as_far:
         sim = void_as_far(sim, POLICY_SPEC)
     sim_groups = np.arange(len(sim))
@@ -72,13 +83,13 @@ def run_metrics(cfg: MetricsConfig) -> dict:
         ("gt", sim), ("randnoise", noisy), ("inpaint", sim), *_ddg_sources(cfg, sim).items())}}
     judged_against = {"inpaint": np.stack([inpaint(d, rng) for d in ref])}
     enc = RandomEncoder()
-    ref_feats = features(ref, enc)
+    ref_feats = features(ref, enc, cfg.judge)
     result = {"reference": {"frames": len(ref), "real_frames": len(np.unique(ref_groups)), **hole_stats(ref)},
               "sources": {}, "config": asdict(cfg)}
     feats = {}
     for name, (fr, groups) in frames.items():
-        feats[name] = features(fr, enc)
-        against = features(judged_against[name], enc) if name in judged_against else ref_feats
+        feats[name] = features(fr, enc, cfg.judge)
+        against = features(judged_against[name], enc, cfg.judge) if name in judged_against else ref_feats
         ci = bootstrap_ci(feats[name], groups, against, ref_groups, cfg.bootstrap, cfg.seed)
         result["sources"][name] = {"fid": fid(feats[name], against), "kid": kid(feats[name], against), **ci,
                                    "vs": "real_inpaint" if name in judged_against else "real",
@@ -93,6 +104,14 @@ def run_metrics(cfg: MetricsConfig) -> dict:
                {"real": result["reference"], **result["sources"]}, out.with_name("holes.png"))
     plot_tsne(ref_feats, {k: v for k, v in feats.items() if k != "inpaint"}, out.with_name("tsne.png"))
     return result
+
+
+def _check(cfg: MetricsConfig) -> None:
+    if cfg.judge not in JUDGE_CHANNELS:
+        raise RealDataError(f"--judge must be one of {', '.join(JUDGE_CHANNELS)}, got {cfg.judge!r}")
+    if cfg.demos and cfg.views != "policy":
+        raise RealDataError(f"--views {cfg.views} renders its own scenes; a demo store holds the policy's "
+                            "view only (drop --demos or --views)")
 
 
 def bootstrap_ci(a: np.ndarray, a_groups: np.ndarray, b: np.ndarray, b_groups: np.ndarray, replicates: int,

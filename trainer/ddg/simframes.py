@@ -1,5 +1,5 @@
 """Simulated clean depth at the policy resolution: from a demo store, or rendered from randomised world
-scenes."""
+scenes, seen by the robot's camera (``policy``) or from views matched to the real captures (``matched``)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,17 @@ import numpy as np
 from tqdm import tqdm
 
 from runtime.preprocess import DepthSpec, crop_resize
+
+from .data import RealDataError, policy_crop
+
+VIEWS = ("policy", "matched")
+MATCHED_DISTANCE_M = (0.5, 1.0)
+"""Camera-to-object distance of the matched views: the held-out real D4xx captures see their scenes at
+0.3-1.1 m (median depth per frame), the D455's min-z is 0.34 m, the arm's hand hangs 40 cm over the table."""
+MATCHED_ELEVATION_DEG = (45.0, 85.0)
+MAX_VOID_FRACTION = 0.002
+"""A matched view with more "no data" in its crop (part of the arm nearer than min-z, or the sky) is drawn
+again: the real captures' holes are the sensor's, never the scene's range."""
 
 
 def void_as_far(sim_mm: np.ndarray, spec: DepthSpec) -> np.ndarray:
@@ -29,19 +40,44 @@ def from_demos(path: str, n: int) -> np.ndarray:
     return np.stack([np.asarray(depth[i]) for i in idx])
 
 
-def rendered(n: int, seed: int = 0) -> np.ndarray:
-    """``n`` frames from ``hil_sim.world`` scenes: a random object of every kind in play, randomised camera
-    and crop window, the arm at its (jittered) home pose."""
+def rendered(n: int, seed: int = 0, views: str = "policy") -> np.ndarray:
+    """``n`` frames from ``hil_sim.world`` scenes: a random object of every kind in play, the arm at its
+    (jittered) home pose. ``policy``: the robot's randomised camera and crop window, as in the demos.
+    ``matched``: a close view of the object like the real captures' (``matched_view``), cut at a random
+    policy crop as they are."""
     from hil_sim.objects import GROUPS
     from hil_sim.world import World
 
+    if views not in VIEWS:
+        raise RealDataError(f"views must be one of {', '.join(VIEWS)}, got {views!r}")
     world = World()
-    kinds = GROUPS["all"]
-    frames = []
+    kinds, rng = GROUPS["all"], np.random.default_rng(seed)
+    frames, draws = [], 0
     try:
-        for i in tqdm(range(n), desc="render sim scenes", leave=False):
-            ep = world.reset(kinds[i % len(kinds)], seed=seed * 100_003 + i)
-            frames.append(crop_resize(world.render_depth(), world.spec, ep.crop_window))
+        with tqdm(total=n, desc=f"render sim scenes ({views} views)", leave=False) as bar:
+            while len(frames) < n:
+                ep = world.reset(kinds[draws % len(kinds)], seed=seed * 100_003 + draws)
+                draws += 1
+                if views == "policy":
+                    frames.append(crop_resize(world.render_depth(), world.spec, ep.crop_window))
+                    bar.update()
+                    continue
+                world.aim_camera(*matched_view(world.object_pose()[0], rng))
+                crop = policy_crop(world.render_depth(), rng)[0]
+                if np.mean(crop == 0) <= MAX_VOID_FRACTION:
+                    frames.append(crop)
+                    bar.update()
     finally:
         world.close()
     return np.stack(frames)
+
+
+def matched_view(obj: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(camera position, target): looking down at ``obj`` from ``MATCHED_DISTANCE_M`` (log-uniform) and
+    ``MATCHED_ELEVATION_DEG``, from the side away from the robot's base (the arm behind the object, as from
+    the robot's own camera), aimed within 5 cm of the object."""
+    target = np.asarray(obj, float) + np.r_[rng.uniform(-0.05, 0.05, 2), 0.0]
+    dist = np.exp(rng.uniform(*np.log(MATCHED_DISTANCE_M)))
+    elev, azim = np.deg2rad(rng.uniform(*MATCHED_ELEVATION_DEG)), rng.uniform(-np.pi / 2, np.pi / 2)
+    direction = np.r_[np.cos(elev) * np.cos(azim), np.cos(elev) * np.sin(azim), np.sin(elev)]
+    return target + dist * direction, target
