@@ -80,6 +80,11 @@ def test_metrics_cli_end_to_end(tmp_path, tiny_demos, tiny_model):
     lo, hi = res["sources"]["gt"]["fid_ci95"]
     assert lo <= hi and res["sources"]["gt"]["kid_ci95"][0] <= res["sources"]["gt"]["kid_ci95"][1]
     assert all((out.parent / f).stat().st_size > 0 for f in ("grid.png", "tsne.png", "holes.png"))
+    off = {k: v.get("off_sim_mm_p50_p90") for k, v in res["sources"].items()}
+    assert off["gt"] == off["ddg"] == [0.0, 0.0] and off["real_other_sensors"] is None
+    assert off["ddg_nograft"][1] > 0  # an untrained net moves the geometry
+    assert main([*args, "--judge", "holes", "--bootstrap", "0"]) == 0
+    assert "inpaint" not in json.loads(out.read_text())["sources"]  # no holes on either side to judge
 
 
 def test_fit_help_shows_field_docs():

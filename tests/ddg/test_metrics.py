@@ -4,7 +4,7 @@ import pytest
 from runtime.preprocess import DepthSpec
 from trainer.ddg.features import RandomEncoder, encoder_input, features, fid, kid
 from trainer.ddg.holestats import hole_stats
-from trainer.ddg.metrics import bootstrap_ci
+from trainer.ddg.metrics import bootstrap_ci, off_sim_mm
 from trainer.ddg.simframes import (
     MATCHED_DISTANCE_M,
     MATCHED_ELEVATION_DEG,
@@ -112,3 +112,11 @@ def test_matched_frames_are_close_views_without_void_and_reproducible():
     assert np.array_equal(rendered(6, seed=3, views="matched"), frames)
     with pytest.raises(ValueError, match="views must be one of policy, matched"):
         rendered(1, views="wrist")
+
+
+def test_off_sim_counts_only_pixels_both_measure():
+    sim = np.array([[[1000, 1000, 0, 1000]]], np.uint16)
+    moved = np.array([[[1010, 0, 500, 1100]]], np.uint16)  # 10 and 100 mm off where both measure
+    assert off_sim_mm(moved, sim) == [55.0, 91.0]
+    assert off_sim_mm(sim, sim) == [0.0, 0.0]
+    assert all(np.isnan(off_sim_mm(np.zeros_like(sim), sim)))

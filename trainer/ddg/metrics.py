@@ -79,8 +79,10 @@ def run_metrics(cfg: MetricsConfig) -> dict:
         sim = void_as_far(sim, POLICY_SPEC)
     sim_groups = np.arange(len(sim))
     noisy = np.stack([randnoise(d, rng) for d in sim])
-    frames = {**extra_real, **{k: (v, sim_groups) for k, v in (
-        ("gt", sim), ("randnoise", noisy), ("inpaint", sim), *_ddg_sources(cfg, sim).items())}}
+    simulated = {"gt": sim, "randnoise": noisy, **_ddg_sources(cfg, sim)}
+    if cfg.judge != "holes":  # Sim GT and inpainted real depth both have none: nothing for that judge to see
+        simulated["inpaint"] = sim
+    frames = {**extra_real, **{k: (v, sim_groups) for k, v in simulated.items()}}
     judged_against = {"inpaint": np.stack([inpaint(d, rng) for d in ref])}
     enc = RandomEncoder()
     ref_feats = features(ref, enc, cfg.judge)
@@ -94,6 +96,8 @@ def run_metrics(cfg: MetricsConfig) -> dict:
         result["sources"][name] = {"fid": fid(feats[name], against), "kid": kid(feats[name], against), **ci,
                                    "vs": "real_inpaint" if name in judged_against else "real",
                                    "frames": len(fr), **hole_stats(fr)}
+        if name in simulated:
+            result["sources"][name]["off_sim_mm_p50_p90"] = off_sim_mm(fr, sim)
     out = Path(cfg.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
@@ -112,6 +116,14 @@ def _check(cfg: MetricsConfig) -> None:
     if cfg.demos and cfg.views != "policy":
         raise RealDataError(f"--views {cfg.views} renders its own scenes; a demo store holds the policy's "
                             "view only (drop --demos or --views)")
+
+
+def off_sim_mm(frames: np.ndarray, sim: np.ndarray) -> list[float]:
+    """Median and p90 of |depth - the simulator's| over the pixels both measure: how far a source moves the
+    scene's geometry (grafting keeps it: 0 by construction; the paper's reason for it)."""
+    both = (frames > 0) & (sim > 0)
+    off = np.abs(frames[both].astype(np.int32) - sim[both].astype(np.int32))
+    return [float(v) for v in np.percentile(off, [50, 90])] if off.size else [float("nan")] * 2
 
 
 def bootstrap_ci(a: np.ndarray, a_groups: np.ndarray, b: np.ndarray, b_groups: np.ndarray, replicates: int,
@@ -137,7 +149,7 @@ def _resample(groups: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 def table(result: dict) -> str:
     """Table I analogue plus hole statistics, one row per source."""
     head = (f"{'source':<20}{'FID':>9}{'FID 95% CI':>16}{'KIDx100':>9}{'KIDx100 95% CI':>17}{'holes%':>8}"
-            f"{'p50 size':>9}{'edge/flat':>10}{'grad p90':>9}")
+            f"{'p50 size':>9}{'edge/flat':>10}{'grad p90':>9}{'off sim p50/p90 mm':>20}")
     rows = [head, "-" * len(head)]
     ref = result["reference"]
     rows.append(_row("real (reference)", ref))
@@ -152,7 +164,8 @@ def _row(name: str, s: dict) -> str:
     fid_ci, kid_ci = (_interval(s.get("fid_ci95"), 1), _interval(s.get("kid_ci95"), 100))
     return (f"{name:<20}{fid_:>9}{fid_ci:>16}{kid_:>9}{kid_ci:>17}"
             f"{100 * s['hole_fraction']:8.2f}{s['hole_size_px_p50_p90'][0]:9.1f}"
-            f"{'-' if ratio is None else f'{ratio:.1f}':>10}{s['grad_mm_per_px_p50_p90_p99'][1]:9.1f}")
+            f"{'-' if ratio is None else f'{ratio:.1f}':>10}{s['grad_mm_per_px_p50_p90_p99'][1]:9.1f}"
+            f"{' / '.join(f'{v:.0f}' for v in s.get('off_sim_mm_p50_p90', [])):>20}")
 
 
 def _interval(ci: list[float] | None, scale: float) -> str:
