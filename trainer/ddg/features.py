@@ -8,6 +8,11 @@ the same frozen net. Random conv features are known to rank generative models se
 "Reliable Fidelity and Diversity Metrics"). Depth enters relative (per-frame 1st-99th percentile of the valid
 pixels -> [0, 1]), so the metric compares artifacts and local geometry, not the camera's distance to the
 table, which differs between the real captures and the simulator.
+
+Its limit, measured (docs/ddg.md "Views matched to the real captures"): channel means see how many holes
+there are and how large, not whether they fall where a D4xx loses depth (procedural rand-noise holes score as
+real as the DDG's on the hole channel alone), and the depth channel still reads the scene's layout.
+``ddg paired`` judges hole placement pixel by pixel where the exact scene is known.
 """
 
 from __future__ import annotations
