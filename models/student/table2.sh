@@ -593,4 +593,44 @@ ddgaf3k() {  # docs/student.md "The episode's first frame": ddga6k's two fine-tu
     done
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k [NAME...]}"
+first_turn_fit() {  # docs/student.md "The first step's turn, read from the yaw": does the denoiser fit the first
+    # step's turn on its own training demos when a head reads it the object's yaw? 300 demos, 6000 steps from
+    # scratch, epsilon beside velocity (one thread each), each judged on its training demos and the held-out ones
+    [ -d runs/student/demos_300.zarr ] || python -m trainer collect --episodes 300 --objects seen --workers 2 \
+        --out runs/student/demos_300.zarr
+    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
+        --workers 2 --out runs/student/heldout_60.zarr
+    local p
+    for p in epsilon v_prediction; do
+        python -m trainer student fit --demos runs/student/demos_300.zarr --depth-source gt --object-loss 1 \
+            --steps 6000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 1 \
+            --ckpt-every 1000 $HPOS --seen-yaw --prediction "$p" --out "runs/student/yaw300_$p" &
+    done
+    wait
+    for p in epsilon v_prediction; do
+        python -m export "runs/student/yaw300_$p/ckpt.pt" --ddim-steps 4 --out "runs/student/yaw300_$p.onnx"
+        python models/student/diagnose.py copycat "runs/student/yaw300_$p.onnx" --demos runs/student/demos_300.zarr \
+            --checkpoint "runs/student/yaw300_$p/ckpt.pt" > "runs/table2/copycat_yaw300_${p}_train.log" 2>&1
+        python models/student/diagnose.py copycat "runs/student/yaw300_$p.onnx" --demos runs/student/heldout_60.zarr \
+            --checkpoint "runs/student/yaw300_$p/ckpt.pt" > "runs/table2/copycat_yaw300_${p}_heldout.log" 2>&1
+    done
+}
+
+yaw_v() {  # docs/student.md "The first step's turn, read from the yaw": `velocity`'s velocity student with one
+    # flag more, --seen-yaw (the head reads the object's yaw from the start), then who decides its first turn and
+    # wrist_measures, and its reading on the held-out demos
+    demos_3k
+    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
+        --workers 2 --out runs/student/heldout_60.zarr
+    python -m trainer student fit --demos runs/sim/demos_seen_3k.zarr --depth-source gt --object-loss 1 \
+        --steps 36000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 \
+        --ckpt-every 1000 $HPOS --prediction v_prediction --seen-yaw --out runs/student/gt3k_hposy_v_36k
+    python models/student/diagnose.py decides --checkpoint runs/student/gt3k_hposy_v_36k/ckpt.pt \
+        --demos runs/sim/demos_seen_3k.zarr --episodes 600 > runs/table2/decides_gt3k_hposy_v_36k.log 2>&1
+    wrist_measures gt3k_hposy_v_36k
+    python models/student/diagnose.py copycat runs/student/gt3k_hposy_v_36k_x4.onnx \
+        --demos runs/student/heldout_60.zarr --checkpoint runs/student/gt3k_hposy_v_36k/ckpt.pt \
+        > runs/table2/copycat_gt3k_hposy_v_36k_reading.log 2>&1
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k|first_turn_fit|yaw_v [NAME...]}"
