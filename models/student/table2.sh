@@ -109,6 +109,11 @@ demos_3k() {
     grow_demos runs/sim/demos_seen.zarr runs/sim/demos_seen_3k.zarr 3000
 }
 
+heldout_60() {  # the 60 held-out demos (seeds 50000..) every held-out measure reads; made once
+    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
+        --workers 2 --out runs/student/heldout_60.zarr
+}
+
 chosen() {  # the STUDENTS entries named in $NAMES (all of them if it is empty)
     local student
     for student in "${STUDENTS[@]}"; do
@@ -291,8 +296,7 @@ probe() {  # name demos [probe options...]: the object estimate of a run (its ex
 measure() {  # name training-demos: a hand-pose student's exec-4 ONNX, its object estimate on 60 held-out demos, on
     # its training demos and on its own episodes (by distance to the object), and its clean cells at 180 episodes
     local name=$1
-    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
-        --workers 2 --out runs/student/heldout_60.zarr
+    heldout_60
     python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
     probe "$name" runs/student/heldout_60.zarr
     probe "$name" "$2"
@@ -539,8 +543,7 @@ velocity() {  # docs/student.md "The first step's turn": moredata's gt3k_hpos_36
         --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 --ckpt-every 1000 $HPOS"
     python -m trainer student fit $common --out runs/student/gt3k_hpos_36k
     python -m trainer student fit $common --prediction v_prediction --out runs/student/gt3k_hpos_v_36k
-    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
-        --workers 2 --out runs/student/heldout_60.zarr
+    heldout_60
     for name in gt3k_hpos_36k gt3k_hpos_v_36k; do
         python models/student/diagnose.py decides --checkpoint "runs/student/$name/ckpt.pt" \
             --demos runs/sim/demos_seen_3k.zarr --episodes 600 > "runs/table2/decides_$name.log" 2>&1
@@ -598,8 +601,7 @@ first_turn_fit() {  # docs/student.md "The first step's turn, read from the yaw"
     # scratch, epsilon beside velocity (one thread each), each judged on its training demos and the held-out ones
     [ -d runs/student/demos_300.zarr ] || python -m trainer collect --episodes 300 --objects seen --workers 2 \
         --out runs/student/demos_300.zarr
-    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
-        --workers 2 --out runs/student/heldout_60.zarr
+    heldout_60
     local p
     for p in epsilon v_prediction; do
         python -m trainer student fit --demos runs/student/demos_300.zarr --depth-source gt --object-loss 1 \
@@ -620,8 +622,7 @@ yaw_v() {  # docs/student.md "The first step's turn, read from the yaw": `veloci
     # flag more, --seen-yaw (the head reads the object's yaw from the start), then who decides its first turn and
     # wrist_measures, and its reading on the held-out demos
     demos_3k
-    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
-        --workers 2 --out runs/student/heldout_60.zarr
+    heldout_60
     python -m trainer student fit --demos runs/sim/demos_seen_3k.zarr --depth-source gt --object-loss 1 \
         --steps 36000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 \
         --ckpt-every 1000 $HPOS --prediction v_prediction --seen-yaw --out runs/student/gt3k_hposy_v_36k
