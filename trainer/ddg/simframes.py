@@ -58,18 +58,23 @@ def rendered(n: int, seed: int = 0, views: str = "policy") -> np.ndarray:
             while len(frames) < n:
                 ep = world.reset(kinds[draws % len(kinds)], seed=seed * 100_003 + draws)
                 draws += 1
-                if views == "policy":
-                    frames.append(crop_resize(world.render_depth(), world.spec, ep.crop_window))
-                    bar.update()
-                    continue
-                world.aim_camera(*matched_view(world.object_pose()[0], rng))
-                crop = policy_crop(world.render_depth(), rng)[0]
-                if np.mean(crop == 0) <= MAX_VOID_FRACTION:
+                crop = _view(world, ep, views, rng)
+                if crop is not None:
                     frames.append(crop)
                     bar.update()
     finally:
         world.close()
     return np.stack(frames)
+
+
+def _view(world, ep, views: str, rng: np.random.Generator) -> np.ndarray | None:
+    """The policy-resolution crop of the episode's scene as ``views`` sees it; None for a matched view to draw
+    again (``MAX_VOID_FRACTION``)."""
+    if views == "policy":
+        return crop_resize(world.render_depth(), world.spec, ep.crop_window)
+    world.aim_camera(*matched_view(world.object_pose()[0], rng))
+    crop = policy_crop(world.render_depth(), rng)[0]
+    return crop if np.mean(crop == 0) <= MAX_VOID_FRACTION else None
 
 
 def matched_view(obj: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
