@@ -42,7 +42,7 @@ def calibration_feeds(meta: PolicyMetadata, ckpt: Checkpoint, count: int = 32) -
     if demos and Path(demos).exists():
         from trainer.student.data import DemoDataset
         source = ckpt.info.data.get("depth_source", "gt")
-        data = DemoDataset.stacked_as(demos, source, meta)
+        data = DemoDataset.stacked_as(demos, source, meta, meta.preprocess)
         batch = data.batch(rng.integers(0, len(data), count), rng)
         pairs = [(batch.depth[i:i + 1].numpy(), batch.state[i:i + 1].numpy()) for i in range(count)]
     else:

@@ -20,7 +20,7 @@ from hil_sim.objects import ObjectError
 from runtime.preprocess import DepthSpec
 from trainer.dataset import DatasetError, DemoStore, EpisodeRecord
 from trainer.evaluate import object_list
-from trainer.policies import PolicyError, parse
+from trainer.policies import NEEDS_DEPTH, PolicyError, depth_spec, parse
 from trainer.sim.env import EnvConfig
 from trainer.sim.rollout import Job, Rollout, rollouts
 from trainer.sim.sensors import make_sensor
@@ -52,9 +52,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="uniform +- noise on the wrist's (joint 7) start angle, rad: wider than the default, "
                         "the wrist's angle no longer tells a student which way the expert turns it "
                         "(docs/student.md \"The wrist's turn\")")
+    p.add_argument("--resolution", type=resolution, default=f"{DepthSpec.out_width}x{DepthSpec.out_height}",
+                   metavar="WxH", help="policy depth resolution stored, from the same crop window (default "
+                   "%(default)s; finer pixels place the object more precisely, at more training cost)")
     p.add_argument("--max-attempts", type=int, default=0,
                    help="give up after this many attempts in the store (0: 2 x N + 20)")
     return p
+
+
+def resolution(text: str) -> tuple[int, int]:
+    """'192x144' -> (192, 144): the policy depth's width and height."""
+    width, sep, height = text.partition("x")
+    if not (sep and width.isdigit() and height.isdigit()):
+        raise argparse.ArgumentTypeError(f"resolution must be WIDTHxHEIGHT, e.g. 192x144, got {text!r}")
+    return int(width), int(height)
 
 
 def _record(r: Rollout, spec_shape: tuple[int, int]) -> EpisodeRecord:
@@ -72,9 +83,13 @@ def collect(args: argparse.Namespace) -> dict:
     parse(args.teacher)
     make_sensor(args.sensor)  # an unknown sensor is refused before a store is made
     kinds = object_list(args.objects)
+    spec = DepthSpec(out_width=args.resolution[0], out_height=args.resolution[1])
+    read = depth_spec(args.teacher)
+    if NEEDS_DEPTH[parse(args.teacher)[0]] and read != spec:  # a takeover student
+        raise ValueError(f"the teacher {args.teacher} reads {read.out_width}x{read.out_height} depth: "
+                         "pass that as --resolution")
     config = EnvConfig(objects=kinds, render_depth=not args.no_depth, render_rgb=args.rgb,
-                       wrist_noise=args.wrist_noise)
-    spec = DepthSpec()
+                       wrist_noise=args.wrist_noise, depth=spec)
     store = DemoStore.create(args.out, spec=spec, action_scale=config.action_scale,
                              control_rate_hz=config.control_rate_hz, rgb=args.rgb,
                              sensor=None if args.sensor == "clean" else args.sensor,

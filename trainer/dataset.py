@@ -60,6 +60,11 @@ class EpisodeRecord:
     depth_sensor: np.ndarray | None = None
 
 
+def sizes(spec: DepthSpec) -> str:
+    """How a message names a depth spec: its resolution and crop."""
+    return f"{spec.out_width}x{spec.out_height} depth of a {spec.crop_width}x{spec.crop_height} crop"
+
+
 class DemoStore:
     """Append-only episode store; ``DemoStore.open(path)`` to read, ``DemoStore.create`` to write."""
 
@@ -92,6 +97,9 @@ class DemoStore:
             if store.attrs.get("sensor") != sensor:
                 raise DatasetError(f"{str(path)!r} keeps the frames of sensor {store.attrs.get('sensor')!r}, "
                                    f"not {sensor!r}: resume it with the same sensor, or choose another store")
+            if store.depth_spec != spec:
+                raise DatasetError(f"{str(path)!r} keeps {sizes(store.depth_spec)}, not {sizes(spec)}: "
+                                   "resume it with the same resolution, or choose another store")
             return store
         # Built beside its final name and renamed into place, so neither a reader nor a resume ever sees a
         # store without its arrays (a kill during creation leaves only the ".creating" folder).

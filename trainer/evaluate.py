@@ -23,7 +23,7 @@ from tqdm import tqdm
 
 from hil_sim.objects import GROUPS, ObjectError, resolve
 from runtime.preprocess import RESTORE_METHODS
-from trainer.policies import NEEDS_DEPTH, PolicyError, parse
+from trainer.policies import NEEDS_DEPTH, PolicyError, depth_spec, parse
 from trainer.sim.env import EnvConfig
 from trainer.sim.rollout import Job, rollouts
 from trainer.sim.sensors import SensorError, make_sensor, reads_clean_depth
@@ -72,7 +72,7 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
 def evaluate(policy: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 10_000, workers: int = 1,
              sensor: str = "clean", restore: str = "none", randomise: bool = True) -> dict:
     kind, _ = parse(policy)
-    config = EnvConfig(objects=kinds, randomise=randomise,
+    config = EnvConfig(objects=kinds, randomise=randomise, depth=depth_spec(policy),
                        render_depth=NEEDS_DEPTH[kind] and reads_clean_depth(sensor))
     jobs = [Job(seed + i, kinds[i % len(kinds)]) for i in range(episodes)]
     per: dict[str, list[bool]] = {k: [] for k in kinds}

@@ -20,6 +20,8 @@ from typing import Protocol
 
 import numpy as np
 
+from runtime.preprocess import DepthSpec
+
 
 class PolicyError(ValueError):
     """A policy spec that names no known kind, or whose loader module is missing."""
@@ -37,7 +39,7 @@ class Observation:
 
     @cached_property
     def depth(self) -> np.ndarray | None:
-        """uint16 [96, 128] mm at the policy resolution (0 = no data), after the sensor model."""
+        """uint16 [H, W] mm at the policy resolution (0 = no data), after the sensor model."""
         return self.depth_frame() if callable(self.depth_frame) else self.depth_frame
 
 
@@ -91,6 +93,21 @@ def parse(spec: str) -> tuple[str, str]:
         raise PolicyError(f"unknown policy {spec!r}; expected one of: "
                           "scripted, reactive, ppo:CKPT, student:ONNX, takeover:ONNX")
     return kind, arg
+
+
+def depth_spec(spec: str) -> DepthSpec:
+    """The crop and resolution the policy reads: a student file's own (its metadata), for the env to render;
+    the default for privileged teachers, which read none."""
+    kind, arg = parse(spec)
+    if not NEEDS_DEPTH[kind]:
+        return DepthSpec()
+    from runtime.policy import Policy as RuntimePolicy
+    from runtime.policy import PolicyError as FileError
+
+    try:
+        return RuntimePolicy(arg).metadata.preprocess
+    except FileError as exc:
+        raise PolicyError(str(exc)) from None
 
 
 def make_policy(spec: str) -> Policy:

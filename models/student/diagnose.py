@@ -49,7 +49,7 @@ import numpy as np
 
 from hil_sim.objects import GROUPS
 from hil_sim.world import HOME_Q
-from trainer.policies import make_policy
+from trainer.policies import depth_spec, make_policy
 from trainer.sim.env import HAND_QUAT, OBJECT_FROM_HAND, OBJECT_POSITION, OBJECT_QUAT, EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, rollouts, run_episode
 from trainer.teacher.scripted import ScriptedExpert
@@ -115,7 +115,7 @@ def adjusted_r2(x: np.ndarray, y: np.ndarray) -> float:
 
 
 def spread(policy: str, episodes: int) -> None:
-    runs = rollouts(EnvConfig(objects=KINDS), policy, jobs(episodes))
+    runs = rollouts(EnvConfig(objects=KINDS, depth=depth_spec(policy)), policy, jobs(episodes))
     closed = [r for r in runs if r.closed_at is not None]
     offsets = np.array([r.closed_at[1] for r in closed]) * 100
     print(f"{len(closed)} of {episodes} episodes closed the gripper; object - hand at the first close, cm:")
@@ -151,7 +151,7 @@ class Tracker:
 
 
 def descent(policy: str, episodes: int) -> None:
-    env, tracker = GraspEnv(EnvConfig(objects=KINDS)), Tracker(make_policy(policy))
+    env, tracker = GraspEnv(EnvConfig(objects=KINDS, depth=depth_spec(policy))), Tracker(make_policy(policy))
     nearest, at_close = [], []
     for job in jobs(episodes):
         won = run_episode(env, tracker, job).success
@@ -199,7 +199,8 @@ class TurnTracker(Tracker):
 def turn(policy: str, episodes: int, sensor_spec: str) -> None:
     from trainer.sim.sensors import make_sensor, reads_clean_depth
 
-    env = GraspEnv(EnvConfig(objects=KINDS, render_depth=reads_clean_depth(sensor_spec)))
+    env = GraspEnv(EnvConfig(objects=KINDS, depth=depth_spec(policy),
+                             render_depth=reads_clean_depth(sensor_spec)))
     tracker, sensor = TurnTracker(make_policy(policy)), make_sensor(sensor_spec)
     rows = {True: [], False: []}
     for job in [j for j in jobs(3 * episodes) if j.kind in ELONGATED][:episodes]:
@@ -271,7 +272,7 @@ def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
     from trainer.student.probe import env_chunk
 
     policy = StudentOnnxPolicy(policy_path)
-    data = DemoDataset.stacked_as(demos, "gt", policy.meta)
+    data = DemoDataset.stacked_as(demos, "gt", policy.meta, policy.meta.preprocess)
     store = DemoStore.open(demos)
     starts = elongated_starts(data, store)
     doubled_yaw = privileged_targets(store, True, len(data), "fingers")[:, 5:7]
@@ -310,9 +311,9 @@ def decides(ckpt_path: str, demos: str, episodes: int) -> None:
     from trainer.student.data import DemoDataset
     from trainer.student.ddim import training_scheduler
 
-    net = checkpoint.load(Path(ckpt_path)).policy().eval()
-    cfg = net.config
-    data = DemoDataset.stacked_as(demos, "gt", cfg, episodes=episodes)
+    ckpt = checkpoint.load(Path(ckpt_path))
+    net, cfg = ckpt.policy().eval(), ckpt.config
+    data = DemoDataset.stacked_as(demos, "gt", cfg, ckpt.info.depth_spec, episodes=episodes)
     starts = elongated_starts(data, DemoStore.open(demos))
     sched, gen = training_scheduler(cfg.train_timesteps, cfg.prediction), torch.Generator().manual_seed(0)
     print(f"{len(starts)} elongated episodes of {demos}; {cfg.prediction} prediction")
@@ -382,7 +383,8 @@ def locate(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None
     from trainer.sim.sensors import make_sensor, reads_clean_depth
 
     head, sensor = ObjectEstimate(ckpt_path), make_sensor(sensor_spec)
-    env = GraspEnv(EnvConfig(objects=KINDS, render_depth=reads_clean_depth(sensor_spec)))
+    env = GraspEnv(EnvConfig(objects=KINDS, depth=depth_spec(policy),
+                             render_depth=reads_clean_depth(sensor_spec)))
     tracker = Tracker(make_policy(policy), frames=True)
     bins = {name: [] for name in HEIGHT_BINS_CM}
     for job in jobs(episodes):
@@ -408,7 +410,7 @@ def parts(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None:
     from trainer.sim.sensors import make_sensor
 
     head, sensor = ObjectEstimate(ckpt_path), make_sensor(sensor_spec)
-    env, tracker = GraspEnv(EnvConfig(objects=KINDS)), Tracker(make_policy(policy))
+    env, tracker = GraspEnv(EnvConfig(objects=KINDS, depth=depth_spec(policy))), Tracker(make_policy(policy))
     errors, seen_all, clean_all = {}, [], []
     for job in jobs(episodes):
         run = run_episode(env, tracker, job, sensor=sensor, record=True)

@@ -462,3 +462,17 @@ def test_velocity_prediction_is_trained_on_the_velocity(small_demos, tmp_path):
     torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-4)
     with pytest.raises(StudentConfigError, match="prediction"):
         fit_main([*fit_args(small_demos, tmp_path / "x0", 1), "--prediction", "sample"])
+
+
+def test_a_student_is_not_fed_depth_of_another_resolution(small_demos, tiny_demos, tmp_path):
+    """The encoder pools over any H x W, so a mismatch would run silently: a warm start and a dataset read
+    for a trained student are refused when the demos' resolution is not the one the student learnt."""
+    from trainer.student.data import DemoDataError
+
+    plain = _fitted(small_demos, tmp_path)
+    with pytest.raises(FitError, match="trained on 32x24 depth .* holds 128x96 depth"):
+        fit_main([*fit_args(tiny_demos, tmp_path / "finer", 1), "--init", str(plain)])
+    ckpt = checkpoint.load(plain)
+    with pytest.raises(DemoDataError, match="holds 128x96 depth of a 400x300 crop; the policy reads 32x24"):
+        DemoDataset.stacked_as(tiny_demos, "gt", ckpt.config, ckpt.info.depth_spec)
+    assert DemoDataset.stacked_as(small_demos, "gt", ckpt.config, ckpt.info.depth_spec).spec == SMALL_SPEC

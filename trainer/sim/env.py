@@ -14,9 +14,9 @@ a[7] gripper, > 0 closes. One step = 1 / ``control_rate_hz`` s of physics.
 Success: the object is held by both fingers within ``success_tol_m`` of p_target (its centre 40 cm above
 the table top, over its start position) for ``hold_steps`` consecutive steps, i.e. grasped, lifted and
 not dropped. The episode ends there, when the object leaves the table, or after ``max_steps``.
-``info`` carries what students see: ``depth`` (uint16 mm at the policy resolution: the episode's crop
-window rendered at 96x128, equal to ``runtime.preprocess.crop_resize`` of the 848x480 stream up to
-sub-pixel sampling, see ``exact_frame``) and ``state`` (7 joints + gripper opening, m).
+``info`` carries what students see: ``depth`` (uint16 mm: the episode's crop window rendered at the policy
+resolution, ``EnvConfig.depth``, 96x128 by default; equal to ``runtime.preprocess.crop_resize`` of the 848x480
+stream up to sub-pixel sampling, see ``exact_frame``) and ``state`` (7 joints + gripper opening, m).
 """
 
 from __future__ import annotations
@@ -65,6 +65,8 @@ class EnvConfig:
     render_depth: bool = True
     """Render the depth frame every step (off for state-only teachers: much faster)."""
     render_rgb: bool = False
+    depth: DepthSpec = DepthSpec()
+    """Crop and resolution of the policy's depth (a student file's own: ``trainer.policies.depth_spec``)."""
     weights: RewardWeights = field(default_factory=RewardWeights)
 
     def __post_init__(self) -> None:
@@ -78,9 +80,9 @@ class EnvConfig:
 class GraspEnv(gym.Env):
     metadata = {"render_modes": []}
 
-    def __init__(self, config: EnvConfig | None = None, spec: DepthSpec | None = None) -> None:
+    def __init__(self, config: EnvConfig | None = None) -> None:
         self.config = config or EnvConfig()
-        self.spec = spec or DepthSpec()
+        self.spec = self.config.depth
         self.world = World(self.config.objects, spec=self.spec,
                            randomisation=Randomisation(wrist_noise=self.config.wrist_noise))
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
@@ -143,7 +145,8 @@ class GraspEnv(gym.Env):
 
     def frame(self) -> np.ndarray:
         """The policy-resolution uint16 depth frame the student would see now: the episode's crop window
-        rendered directly at 96x128 (``World.render_policy_depth``, 8x cheaper than the 848x480 stream)."""
+        rendered directly at the policy resolution (``World.render_policy_depth``, 8x cheaper than the
+        848x480 stream at 96x128)."""
         return self.world.render_policy_depth()
 
     def exact_frame(self) -> np.ndarray:

@@ -20,7 +20,7 @@ import torch
 from hil_sim.kinematics import ArmKinematics
 from hil_sim.world import TABLE_Z
 from runtime.preprocess import DepthSpec, normalise
-from trainer.dataset import DemoStore
+from trainer.dataset import DemoStore, sizes
 
 DEPTH_ARRAYS = {"gt": "data/depth", "randnoise": "data/depth", "ddg": "data/depth_ddg",
                 "ddg_nograft": "data/depth_ddg_nograft", "sensor": "data/depth_sensor"}
@@ -99,11 +99,17 @@ class DemoDataset:
         self.targets = None if self.raw_targets is None else standardise(self.raw_targets, reference)
 
     @classmethod
-    def stacked_as(cls, path: str | Path, depth_source: str, policy, **kwargs) -> DemoDataset:
+    def stacked_as(cls, path: str | Path, depth_source: str, policy, spec: DepthSpec | None = None,
+                   **kwargs) -> DemoDataset:
         """The store's steps stacked as ``policy`` reads them: its ``StudentConfig`` or its file's
-        ``PolicyMetadata`` (``obs_horizon``, ``first_frame``, ``action_horizon``)."""
-        return cls(path, depth_source, policy.obs_horizon, policy.action_horizon,
+        ``PolicyMetadata`` (``obs_horizon``, ``first_frame``, ``action_horizon``). ``spec``: the crop and
+        resolution the policy was trained on;
+        a store of other depth is refused (the encoder would run on it)."""
+        data = cls(path, depth_source, policy.obs_horizon, policy.action_horizon,
                    first_frame=policy.first_frame, **kwargs)
+        if spec is not None and data.spec != spec:
+            raise DemoDataError(f"{path} holds {sizes(data.spec)}; the policy reads {sizes(spec)}")
+        return data
 
     def __len__(self) -> int:
         return len(self.action)

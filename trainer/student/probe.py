@@ -39,7 +39,7 @@ from trainer.student.onnx_policy import StudentOnnxPolicy, to_env_actions
 def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
     policy = StudentOnnxPolicy(policy_path)
     meta = policy.meta
-    data = DemoDataset.stacked_as(demos, depth_source, meta)
+    data = DemoDataset.stacked_as(demos, depth_source, meta, meta.preprocess)
     steps = np.arange(0, len(data), every)
     stacks = [data.depth_stack(int(i)) for i in steps]
     other = np.roll(np.arange(len(steps)), len(steps) // 2)  # each step paired with a distant one
@@ -80,7 +80,7 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     probed = privileged_targets(store, hand, turn=turn)
     if trained_on is None or probed is None:
         raise DemoDataError("object positions are not recorded in the training or the probed demos")
-    data = DemoDataset.stacked_as(demos, depth_source, ckpt.config)
+    data = DemoDataset.stacked_as(demos, depth_source, ckpt.config, ckpt.info.depth_spec)
     steps = np.arange(0, len(data), every)
     net = ckpt.policy()
     with torch.no_grad():

@@ -24,6 +24,7 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
+from trainer.dataset import sizes
 from trainer.diffusion import training_target
 from trainer.student import checkpoint
 from trainer.student.argspec import add_dataclass_args, from_args
@@ -134,7 +135,7 @@ def object_frames(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset) -
         return None
     if not cfg.object_loss:
         raise FitError("--object-demos trains the object head: it needs --object-loss > 0")
-    extra = DemoDataset.stacked_as(cfg.object_demos, cfg.depth_source, model_cfg,
+    extra = DemoDataset.stacked_as(cfg.object_demos, cfg.depth_source, model_cfg, data.spec,
                                    hand_target=model_cfg.hand_target, target_reference=data.raw_targets,
                                    turn=model_cfg.yaw_target)
     if extra.targets is None:
@@ -205,6 +206,9 @@ def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo, data: D
     if (replace(source.config, **changed) != model_cfg or any(getattr(source.config, name) for name in added)
             or model_cfg.obs_horizon > source.config.obs_horizon):
         raise FitError(f"--init {init} is a {source.config}, not the requested {model_cfg}")
+    if source.info.depth_spec != data.spec:
+        raise FitError(f"--init {init} was trained on {sizes(source.info.depth_spec)}; {data.path} holds "
+                       f"{sizes(data.spec)}")
     info = replace(info, data={**info.data, "init": str(init.resolve()),
                                "init_sha256": checkpoint.sha256(init)})
     weights = with_state_inputs(source.ema, model_cfg, data) if added else source.ema
