@@ -109,9 +109,11 @@ demos_3k() {
     grow_demos runs/sim/demos_seen.zarr runs/sim/demos_seen_3k.zarr 3000
 }
 
-heldout_60() {  # the 60 held-out demos (seeds 50000..) every held-out measure reads; made once
-    [ -d runs/student/heldout_60.zarr ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 \
-        --workers 2 --out runs/student/heldout_60.zarr
+heldout_60() {  # [WxH]: the 60 held-out demos (seeds 50000..) every held-out measure reads, made once; at 128x96
+    # in runs/student/heldout_60.zarr, at another policy resolution in runs/student/heldout_60_WxH.zarr
+    local out=runs/student/heldout_60${1:+_$1}.zarr
+    [ -d "$out" ] || python -m trainer collect --episodes 60 --objects seen --seed 50000 --workers 2 \
+        --resolution "${1:-128x96}" --out "$out"
 }
 
 chosen() {  # the STUDENTS entries named in $NAMES (all of them if it is empty)
@@ -293,12 +295,13 @@ probe() {  # name demos [probe options...]: the object estimate of a run (its ex
         --checkpoint "runs/student/$name/ckpt.pt" "$@"
 }
 
-measure() {  # name training-demos: a hand-pose student's exec-4 ONNX, its object estimate on 60 held-out demos, on
-    # its training demos and on its own episodes (by distance to the object), and its clean cells at 180 episodes
+measure() {  # name training-demos [WxH]: a hand-pose student's exec-4 ONNX, its object estimate on 60 held-out demos
+    # (at its resolution WxH, default 128x96), on its training demos and on its own episodes (by distance to the
+    # object), and its clean cells at 180 episodes
     local name=$1
-    heldout_60
+    heldout_60 "${@:3}"
     python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
-    probe "$name" runs/student/heldout_60.zarr
+    probe "$name" "runs/student/heldout_60${3:+_$3}.zarr"
     probe "$name" "$2"
     python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
         --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
@@ -634,4 +637,14 @@ yaw_v() {  # docs/student.md "The first step's turn, read from the yaw": `veloci
         > runs/table2/copycat_gt3k_hposy_v_36k_reading.log 2>&1
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k|first_turn_fit|yaw_v [NAME...]}"
+finer() {  # docs/student.md "Finer pixels": `velocity`'s velocity student on 3000 demos whose depth is 192x144 of
+    # the same 400x300 crop (1.5x finer pixels than 128x96), the same recipe and budget, then `measure` at 192x144
+    [ -d runs/sim/demos_seen_3k_192.zarr ] || python -m trainer collect --episodes 3000 --seed 0 --workers 2 \
+        --resolution 192x144 --out runs/sim/demos_seen_3k_192.zarr
+    python -m trainer student fit --demos runs/sim/demos_seen_3k_192.zarr --depth-source gt --object-loss 1 \
+        --steps 36000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 \
+        --ckpt-every 1000 $HPOS --prediction v_prediction --out runs/student/gt3k192_hpos_v_36k
+    measure gt3k192_hpos_v_36k runs/sim/demos_seen_3k_192.zarr 192x144
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k|first_turn_fit|yaw_v|finer [NAME...]}"
