@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from hil_sim.objects import ObjectError
 from runtime.preprocess import DepthSpec
-from trainer.dataset import DatasetError, DemoStore, EpisodeRecord
+from trainer.dataset import DatasetError, DemoStore, EpisodeRecord, sizes
 from trainer.evaluate import object_list
 from trainer.policies import NEEDS_DEPTH, PolicyError, depth_spec, parse
 from trainer.sim.env import EnvConfig
@@ -80,14 +80,13 @@ def _record(r: Rollout, spec_shape: tuple[int, int]) -> EpisodeRecord:
 
 
 def collect(args: argparse.Namespace) -> dict:
-    parse(args.teacher)
+    teacher, _ = parse(args.teacher)
     make_sensor(args.sensor)  # an unknown sensor is refused before a store is made
     kinds = object_list(args.objects)
     spec = DepthSpec(out_width=args.resolution[0], out_height=args.resolution[1])
-    read = depth_spec(args.teacher)
-    if NEEDS_DEPTH[parse(args.teacher)[0]] and read != spec:  # a takeover student
-        raise ValueError(f"the teacher {args.teacher} reads {read.out_width}x{read.out_height} depth: "
-                         "pass that as --resolution")
+    if NEEDS_DEPTH[teacher] and depth_spec(args.teacher) != spec:  # a takeover student
+        raise ValueError(f"the teacher {args.teacher} reads {sizes(depth_spec(args.teacher))}: pass its "
+                         "resolution as --resolution")
     config = EnvConfig(objects=kinds, render_depth=not args.no_depth, render_rgb=args.rgb,
                        wrist_noise=args.wrist_noise, depth=spec)
     store = DemoStore.create(args.out, spec=spec, action_scale=config.action_scale,
