@@ -84,9 +84,10 @@ def collect(args: argparse.Namespace) -> dict:
     make_sensor(args.sensor)  # an unknown sensor is refused before a store is made
     kinds = object_list(args.objects)
     spec = DepthSpec(out_width=args.resolution[0], out_height=args.resolution[1])
-    if NEEDS_DEPTH[teacher] and depth_spec(args.teacher) != spec:  # a takeover student
-        raise ValueError(f"the teacher {args.teacher} reads {sizes(depth_spec(args.teacher))}: pass its "
-                         "resolution as --resolution")
+    read = depth_spec(args.teacher)  # opens a student file once
+    if NEEDS_DEPTH[teacher] and read != spec:  # a takeover student
+        raise ValueError(f"the teacher {args.teacher} reads {sizes(read)}: pass its resolution as "
+                         "--resolution")
     config = EnvConfig(objects=kinds, render_depth=not args.no_depth, render_rgb=args.rgb,
                        wrist_noise=args.wrist_noise, depth=spec)
     store = DemoStore.create(args.out, spec=spec, action_scale=config.action_scale,

@@ -103,8 +103,8 @@ class DemoDataset:
                    **kwargs) -> DemoDataset:
         """The store's steps stacked as ``policy`` reads them: its ``StudentConfig`` or its file's
         ``PolicyMetadata`` (``obs_horizon``, ``first_frame``, ``action_horizon``). ``spec``: the crop and
-        resolution the policy was trained on;
-        a store of other depth is refused (the encoder would run on it)."""
+        resolution the policy was trained on; a store of other depth is refused (the encoder would run on
+        it)."""
         data = cls(path, depth_source, policy.obs_horizon, policy.action_horizon,
                    first_frame=policy.first_frame, **kwargs)
         if spec is not None and data.spec != spec:
