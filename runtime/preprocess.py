@@ -83,9 +83,15 @@ def crop_resize(raw: np.ndarray, spec: DepthSpec, window: tuple[int, int] | None
     if top < 0 or left < 0 or top + spec.crop_height > raw.shape[0] or left + spec.crop_width > raw.shape[1]:
         raise PreprocessError(f"crop window top={top} left={left} size {spec.crop_height}x{spec.crop_width} "
                               f"does not fit a {raw.shape[0]}x{raw.shape[1]} frame")
-    rows = top + _nearest_index(spec.crop_height, spec.out_height)
-    cols = left + _nearest_index(spec.crop_width, spec.out_width)
-    return raw[np.ix_(rows, cols)]
+    window = raw[top:top + spec.crop_height, left:left + spec.crop_width]
+    return resample(window, spec.out_height, spec.out_width)
+
+
+def resample(depth: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Nearest-neighbour resize of ``depth`` [..., H, W] to [..., height, width] (no blending of holes)."""
+    rows = _nearest_index(depth.shape[-2], height)
+    cols = _nearest_index(depth.shape[-1], width)
+    return depth[..., rows[:, None], cols]
 
 
 RESTORE_METHODS = ("none", "inpaint")

@@ -357,14 +357,14 @@ sixk() {
     measure gt6k_hpos_more_12k runs/sim/demos_seen_6k.zarr
 }
 
-ddg_depth() {  # model from to: a copy of a demo store with that DDG's depth (DDIM 5) in two 1-core shards; resumable.
-    # --replace: the copy drops DDG depth it came with from another generator (train.sh step 3 leaves models/ddg's
-    # in demos_seen.zarr), rather than refusing it
+ddg_depth() {  # model from to [generate options...]: a copy of a demo store with that DDG's depth (DDIM 5) in two
+    # 1-core shards; resumable. --replace: the copy drops DDG depth it came with from another generator (train.sh
+    # step 3 leaves models/ddg's in demos_seen.zarr), rather than refusing it
     [ -d "$3" ] || cp -r "$2" "$3"
     local pids=() shard
     for shard in 0/2 1/2; do
         python -m trainer ddg generate --demos "$3" --model "$1" --steps 5 --threads 1 --batch 16 --replace \
-            --shard "$shard" &
+            --shard "$shard" "${@:4}" &
         pids+=($!)
     done
     for pid in "${pids[@]}"; do wait "$pid"; done
@@ -647,4 +647,19 @@ finer() {  # docs/student.md "Finer pixels": `velocity`'s velocity student on 30
     measure gt3k192_hpos_v_36k runs/sim/demos_seen_3k_192.zarr 192x144
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k|first_turn_fit|yaw_v|finer [NAME...]}"
+ddga192() {  # docs/student.md "DDG depth at finer pixels": ddga6k's two fine-tunes on DDG (a) depth of the first 1000
+    # demos at 192x144 (the generator runs at its 128x96 and its holes are carried back), from finer's velocity
+    # student, then the stereo and clean cells
+    ddg_depth models/ddg runs/sim/demos_seen_3k_192.zarr runs/sim/demos_seen_3k_192_ddg_a.zarr --episodes 1000
+    START=gt3k192_hpos_v_36k fine_tunes ddga192 runs/sim/demos_seen_3k_192_ddg_a.zarr ddg 2 \
+        --prediction v_prediction --episodes 1000
+    local sensor objects
+    for sensor in stereo clean; do
+        for objects in seen unseen; do
+            cell ddga192_hpos_more_12k_x4 runs/student/ddga192_hpos_more_12k_x4.onnx none "$sensor" "$objects" 180 \
+                runs/table2/key
+        done
+    done
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k|first_turn_fit|yaw_v|finer|ddga192 [NAME...]}"

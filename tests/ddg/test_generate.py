@@ -1,9 +1,11 @@
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import zarr
 
+from runtime.preprocess import DepthSpec
 from tests.conftest import write_synthetic_demos
 from trainer.ddg.generate import DemoStoreError, GenerateConfig, generate
 from trainer.ddg.sample import FrameError
@@ -106,6 +108,25 @@ def test_replace_drops_other_settings_depth_and_matches_a_fresh_run(tiny_demos, 
     a, b = zarr.open_group(str(tiny_demos), mode="r"), zarr.open_group(str(fresh), mode="r")
     for name in ("data/depth_ddg", "data/depth_ddg_nograft", "meta/ddg_done"):
         np.testing.assert_array_equal(np.asarray(a[name]), np.asarray(b[name]))
+
+
+def test_episodes_limits_the_work_to_the_chunks_they_span(tiny_demos, tiny_model):
+    assert _run(tiny_demos, tiny_model, episodes=1)["frames"] == 16  # episode 0 is frames [0, 10): 2 chunks
+    done = np.asarray(zarr.open_group(str(tiny_demos), mode="r")["meta/ddg_done"])
+    assert done.tolist() == [True, True, False]
+    assert _run(tiny_demos, tiny_model)["frames"] == 4  # the rest on the next run
+    with pytest.raises(DemoStoreError, match="--episodes 3: the store holds 2 episodes"):
+        _run(tiny_demos, tiny_model, episodes=3)
+
+
+def test_a_store_at_a_finer_resolution_of_the_crop_gets_ddg_depth_at_its_own(tiny_model, tmp_path):
+    spec = replace(DepthSpec(), out_height=144, out_width=192)
+    demos = write_synthetic_demos(tmp_path / "fine.zarr", spec=spec)
+    _run(demos, tiny_model)
+    root = zarr.open_group(str(demos), mode="r")
+    sim, ddg = np.asarray(root["data/depth"]), np.asarray(root["data/depth_ddg"])
+    assert ddg.shape == sim.shape == (24, 144, 192)
+    assert np.array_equal(ddg[ddg > 0], sim[ddg > 0])
 
 
 def test_bad_stores_and_shards(tmp_path, tiny_model):

@@ -1,9 +1,11 @@
 import json
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from runtime.preprocess import DepthSpec, resample
 from trainer.ddg.model import ModelDirError, UNetConfig, ddim_scheduler, load_config
 from trainer.ddg.sample import (
     SESSION_MODES,
@@ -95,6 +97,28 @@ def test_generator_refuses_frames_it_cannot_take(tiny_model, sims):
     for bad in (sims[:, :80], sims.astype(np.float32), sims[0]):
         with pytest.raises(FrameError, match="model's resolution"):
             gen(bad, np.arange(len(bad)))
+
+
+def test_frames_at_a_finer_resolution_get_the_models_holes_carried_back(tiny_model, sims):
+    """A 192x144 student's demos: the generator runs on their 128x96 nearest-neighbour copy, its holes come
+    back nearest-neighbour, and every other pixel keeps the finer frame's own depth."""
+    fine_spec = replace(DepthSpec(), out_height=144, out_width=192)
+    fine = resample(sims, 144, 192)
+    fine[:, 60:63, 90:93] += 7  # detail the 128x96 copy does not see: it must survive where no hole is
+    idx = np.arange(3)
+    grafted, pred = Generator(tiny_model, steps=2, frames=fine_spec)(fine, idx)
+    _, coarse = Generator(tiny_model, steps=2)(resample(fine, 96, 128), idx)
+    assert grafted.shape == pred.shape == fine.shape
+    np.testing.assert_array_equal(pred, resample(coarse, 144, 192))
+    holes = grafted == 0
+    assert 0 < holes.mean() < 1 and np.array_equal(grafted[~holes], fine[~holes])
+    with pytest.raises(FrameError, match=r"\[N, 144, 192\] \(the frames' spec resolution\)"):
+        Generator(tiny_model, steps=1, frames=fine_spec)(sims, idx)
+
+
+def test_frames_of_another_crop_are_refused(tiny_model):
+    with pytest.raises(FrameError, match="another crop, range or stream"):
+        Generator(tiny_model, steps=1, frames=replace(DepthSpec(), crop_width=380, out_width=192))
 
 
 @pytest.mark.parametrize("mode", SESSION_MODES)

@@ -20,6 +20,8 @@ import numpy as np
 import zarr
 from tqdm import tqdm
 
+from runtime.preprocess import DepthSpec
+
 from .baselines import DEFAULT_MODEL
 from .model import model_id
 from .sample import Generator
@@ -34,7 +36,8 @@ class DemoStoreError(ValueError):
 @dataclass(frozen=True)
 class GenerateConfig:
     demos: str = ""
-    """Demo store (zarr) holding data/depth uint16 [N, 96, 128] mm."""
+    """Demo store (zarr) holding data/depth uint16 [N, H, W] mm: the model's crop at any resolution (the
+    generator runs at its own and its holes are carried back, nearest-neighbour)."""
     model: str = str(DEFAULT_MODEL)
     """DDG model directory."""
     steps: int = 10
@@ -49,6 +52,8 @@ class GenerateConfig:
     """Frames per output chunk (the unit of resume and sharding)."""
     seed: int = 0
     """Noise seed (per frame: seed, frame index)."""
+    episodes: int = 0
+    """Only the chunks that the first N episodes span (0: all); a student then trains with --episodes N."""
     threads: int = 2
     """CPU cores for onnxruntime."""
     mode: str = "split"
@@ -73,12 +78,15 @@ def generate(cfg: GenerateConfig) -> dict:
     depth = root["data/depth"]
     n = depth.shape[0]
     i, shards = cfg.shard_pair()
+    # a store made by hand (tests) may carry no spec: its frames are then taken to be the model's
+    frames = DepthSpec.from_dict(root.attrs["depth_spec"]) if "depth_spec" in root.attrs else None
     gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, mode=cfg.mode,
-                    eta=cfg.eta)
+                    eta=cfg.eta, frames=frames)
     gen.check_frames(depth)
     with _exclusive(cfg.demos):  # shards started together: the first creates the outputs, the rest see them
         outs, done = _outputs(_open(cfg.demos), cfg, depth.shape)  # reopened: attrs as the holder left them
-    todo = [k for k in range(done.shape[0]) if k % shards == i and not done[k]]
+    needed = -(-_frames_of(root, cfg.episodes) // cfg.chunk) if cfg.episodes else done.shape[0]
+    todo = [k for k in range(needed) if k % shards == i and not done[k]]
     frames, t0 = 0, time.perf_counter()
     bar = tqdm(todo, desc=f"ddg generate shard {cfg.shard}", unit="chunk")
     for k in bar:
@@ -96,6 +104,14 @@ def generate(cfg: GenerateConfig) -> dict:
     print(f"generated {frames} frames in {seconds:.1f} s: {stats['fps']} frames/s "
           f"(DDIM {cfg.steps} steps, batch {cfg.batch}, {cfg.threads} cores {cfg.mode}, shard {cfg.shard})")
     return stats
+
+
+def _frames_of(root: zarr.Group, episodes: int) -> int:
+    """Frames of the store's first ``episodes`` episodes."""
+    ends = np.asarray(root["meta/episode_ends"])
+    if not 0 < episodes <= len(ends):
+        raise DemoStoreError(f"--episodes {episodes}: the store holds {len(ends)} episodes")
+    return int(ends[episodes - 1])
 
 
 def _open(path: str) -> zarr.Group:

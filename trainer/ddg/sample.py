@@ -9,11 +9,15 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 import torch
+
+from runtime.preprocess import DepthSpec, resample
+from trainer.dataset import sizes
 
 from .graft import decode, graft
 from .model import ddim_scheduler, load_config, load_unet
@@ -94,30 +98,47 @@ def ddim_sample(eps_fn: EpsFn, c: np.ndarray, noise: np.ndarray, scheduler, eta:
 
 
 class Generator:
-    """Simulated uint16 mm frames -> (DDG, DDG without grafting) uint16 mm frames."""
+    """Simulated uint16 mm frames -> (DDG, DDG without grafting) uint16 mm frames.
+
+    ``frames``: the spec of the frames it is given (default: the model's). They may be at another resolution
+    of the same crop: the generator runs at its own resolution on a nearest-neighbour copy, and its holes are
+    carried back the same way and grafted onto the frames as given (a finer student keeps finer geometry).
+    """
 
     def __init__(self, model_dir: str | Path, steps: int = 10, seed: int = 0, threads: int = 2,
-                 backend: str = "onnx", mode: str = "split", eta: float = 0.0) -> None:
+                 backend: str = "onnx", mode: str = "split", eta: float = 0.0, frames: DepthSpec | None = None
+                 ) -> None:
         cfg = load_config(model_dir)
         self.spec, self.threshold, self.seed, self.eta = cfg["depth_spec"], cfg["hole_threshold"], seed, eta
+        self.frames = frames or self.spec
+        same_view = replace(self.frames, out_height=self.spec.out_height, out_width=self.spec.out_width)
+        if same_view != self.spec:
+            raise FrameError(f"the DDG {model_dir} reads {sizes(self.spec)} over {self.spec.near_m}-"
+                             f"{self.spec.far_m} m of a {self.spec.stream_width}x{self.spec.stream_height} "
+                             f"stream; frames of another crop, range or stream cannot be carried to it")
         self.scheduler = ddim_scheduler(cfg["unet"], steps)
         self.eps = OnnxEps(model_dir, threads, mode) if backend == "onnx" else TorchEps(model_dir)
         self.prior = DepthPrior(self.spec)
 
     def check_frames(self, sim_mm) -> None:
-        """Refuse frames not at the model's resolution (the U-Net is fully convolutional: it would run)."""
-        want = (self.spec.out_height, self.spec.out_width)
+        """Refuse frames not at the resolution announced (the U-Net is fully convolutional: it would run)."""
+        want = (self.frames.out_height, self.frames.out_width)
         if sim_mm.dtype != np.uint16 or sim_mm.ndim != 3 or tuple(sim_mm.shape[1:]) != want:
-            raise FrameError(f"simulated depth must be uint16 mm [N, {want[0]}, {want[1]}] (the model's "
+            whose = "the model's" if self.frames == self.spec else "the frames' spec"
+            raise FrameError(f"simulated depth must be uint16 mm [N, {want[0]}, {want[1]}] ({whose} "
                              f"resolution), got {sim_mm.dtype} {list(sim_mm.shape)}")
 
     def __call__(self, sim_mm: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         self.check_frames(sim_mm)
-        c, scale = zip(*(self.prior.with_scale(d) for d in sim_mm), strict=True)
+        own = (self.spec.out_height, self.spec.out_width)
+        small = resample(sim_mm, *own) if sim_mm.shape[1:] != own else sim_mm
+        c, scale = zip(*(self.prior.with_scale(d) for d in small), strict=True)
         c = np.stack(c)
-        noise = frame_noise(self.seed, indices, sim_mm.shape[1:])
+        noise = frame_noise(self.seed, indices, own)
         pred = ddim_sample(self.eps, c, noise, self.scheduler, self.eta,
-                           lambda k: frame_noise(self.seed, indices, sim_mm.shape[1:], k))
+                           lambda k: frame_noise(self.seed, indices, own, k))
         pred_mm = decode(pred, np.array(scale), self.spec, self.threshold)
-        grafted = np.stack([graft(s, p, self.spec) for s, p in zip(sim_mm, pred_mm, strict=True)])
+        if small is not sim_mm:
+            pred_mm = resample(pred_mm, *sim_mm.shape[1:])
+        grafted = np.stack([graft(s, p, self.frames) for s, p in zip(sim_mm, pred_mm, strict=True)])
         return grafted, pred_mm
