@@ -115,8 +115,10 @@ def test_episodes_limits_the_work_to_the_chunks_they_span(tiny_demos, tiny_model
     done = np.asarray(zarr.open_group(str(tiny_demos), mode="r")["meta/ddg_done"])
     assert done.tolist() == [True, True, False]
     assert _run(tiny_demos, tiny_model)["frames"] == 4  # the rest on the next run
+    shutil.rmtree(tiny_demos / "data" / "depth_ddg")
     with pytest.raises(DemoStoreError, match="--episodes 3: the store holds 2 episodes"):
         _run(tiny_demos, tiny_model, episodes=3)
+    assert "depth_ddg" not in zarr.open_group(str(tiny_demos), mode="r")["data"]  # refused before any work
 
 
 def test_a_store_at_a_finer_resolution_of_the_crop_gets_ddg_depth_at_its_own(tiny_model, tmp_path):

@@ -83,9 +83,9 @@ def generate(cfg: GenerateConfig) -> dict:
     gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, mode=cfg.mode,
                     eta=cfg.eta, frames=frames)
     gen.check_frames(depth)
+    needed = -(-(_frames_of(root, cfg.episodes) if cfg.episodes else n) // cfg.chunk)  # chunks to fill
     with _exclusive(cfg.demos):  # shards started together: the first creates the outputs, the rest see them
         outs, done = _outputs(_open(cfg.demos), cfg, depth.shape)  # reopened: attrs as the holder left them
-    needed = -(-_frames_of(root, cfg.episodes) // cfg.chunk) if cfg.episodes else done.shape[0]
     todo = [k for k in range(needed) if k % shards == i and not done[k]]
     frames, t0 = 0, time.perf_counter()
     bar = tqdm(todo, desc=f"ddg generate shard {cfg.shard}", unit="chunk")
