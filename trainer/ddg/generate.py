@@ -79,9 +79,9 @@ def generate(cfg: GenerateConfig) -> dict:
     n = depth.shape[0]
     i, shards = cfg.shard_pair()
     # a store made by hand (tests) may carry no spec: its frames are then taken to be the model's
-    frames = DepthSpec.from_dict(root.attrs["depth_spec"]) if "depth_spec" in root.attrs else None
+    store_spec = DepthSpec.from_dict(root.attrs["depth_spec"]) if "depth_spec" in root.attrs else None
     gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, mode=cfg.mode,
-                    eta=cfg.eta, frames=frames)
+                    eta=cfg.eta, frames=store_spec)
     gen.check_frames(depth)
     needed = -(-(_frames_of(root, cfg.episodes) if cfg.episodes else n) // cfg.chunk)  # chunks to fill
     with _exclusive(cfg.demos):  # shards started together: the first creates the outputs, the rest see them
