@@ -33,8 +33,8 @@
 #   models/student/table2.sh ddga6k     `ddgb6k`'s fine-tunes on DDG (a)'s depth (models/ddg, the real captures) of
 #                                       the same 1000 demos, its held-out object estimate and key cells
 #   models/student/table2.sh nografta6k the same on DDG (a)'s depth without grafting, and its key cells
-#   models/student/table2.sh ddga192    `ddga6k`'s fine-tunes on DDG (a) depth of 1000 demos at 192x144, from `finer`'s
-#                                       student, and its cells under both sensors
+#   models/student/table2.sh ddga192 [N]  `ddga6k`'s fine-tunes on DDG (a) depth of N (default 1000) demos at
+#                                       192x144, from `finer`'s student, and its cells under both sensors
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -653,13 +653,15 @@ finer() {  # docs/student.md "Finer pixels": `velocity`'s velocity student on 30
     measure gt3k192_hpos_v_36k runs/sim/demos_seen_3k_192.zarr 192x144
 }
 
-ddga192() {  # docs/student.md "DDG (a) at finer pixels": ddga6k's two fine-tunes on DDG (a) depth of the first 1000
-    # demos at 192x144 (the generator runs at its 128x96 and its holes are carried back), from finer's velocity
-    # student, then the stereo and clean cells
-    ddg_depth models/ddg runs/sim/demos_seen_3k_192.zarr runs/sim/demos_seen_3k_192_ddg_a.zarr --episodes 1000
-    START=gt3k192_hpos_v_36k fine_tunes ddga192 runs/sim/demos_seen_3k_192_ddg_a.zarr ddg 2 \
-        --prediction v_prediction --episodes 1000
-    both_sensors ddga192_hpos_more_12k_x4
+ddga192() {  # [N]: docs/student.md "DDG (a) at finer pixels": ddga6k's two fine-tunes on DDG (a) depth of the first
+    # N (default 1000) demos at 192x144 (the generator runs at its 128x96 and its holes are carried back), from
+    # finer's velocity student, then the stereo and clean cells; runs are named ddga192 (N 1000) or ddga192_N
+    local n=${1:-1000} prefix=ddga192
+    [ "$n" = 1000 ] || prefix=ddga192_$n
+    ddg_depth models/ddg runs/sim/demos_seen_3k_192.zarr runs/sim/demos_seen_3k_192_ddg_a.zarr --episodes "$n"
+    START=gt3k192_hpos_v_36k fine_tunes "$prefix" runs/sim/demos_seen_3k_192_ddg_a.zarr ddg 2 \
+        --prediction v_prediction --episodes "$n"
+    both_sensors "${prefix}_hpos_more_12k_x4"
 }
 
 "${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k|first_turn_fit|yaw_v|finer|ddga192 [NAME...]}"
