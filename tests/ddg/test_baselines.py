@@ -10,6 +10,7 @@ from trainer.ddg.baselines import (
     parse_sensor_arg,
     randnoise,
 )
+from trainer.ddg.sample import FrameError
 
 from .conftest import scene
 
@@ -48,6 +49,27 @@ def test_registry_names_and_errors(tiny_model, clean):
     assert out.shape == clean.shape and out.dtype == np.uint16
     keep = out > 0
     assert np.array_equal(out[keep], clean[keep])  # grafted: every kept pixel is the sim's
+
+
+def test_ddg_source_takes_a_finer_students_frames(tiny_model):
+    """A 192x144 frame of the same crop gets the holes of a generator told its spec, and keeps its own depth
+    elsewhere (it is not the 128x96 frame's copy)."""
+    from dataclasses import replace
+
+    from trainer.ddg.sample import Generator
+
+    fine = scene(np.random.default_rng(1), 144, 192)
+    fine[::2, ::2] += 1  # detail a 128x96 copy cannot carry
+    source = get_source("ddg", model=tiny_model, steps=2)
+    out = source(fine, np.random.default_rng(5))
+    index = np.array([np.random.default_rng(5).integers(0, 2**62)])
+    spec = replace(source.generator.spec, out_height=144, out_width=192)
+    told = Generator(tiny_model, steps=2, frames=spec)
+    assert np.array_equal(out, told(fine[None], index)[0][0])
+    keep = out > 0
+    assert out.shape == (144, 192) and keep.any() and np.array_equal(out[keep], fine[keep])
+    with pytest.raises(FrameError, match=r"\[N, 96, 128\] \(the model's resolution\)"):
+        source(fine[None], np.random.default_rng(5))
 
 
 def test_sources_plug_into_the_evaluation_sensors():

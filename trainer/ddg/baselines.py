@@ -13,7 +13,7 @@ numpy Generator -> uint16 mm depth [H, W] (0 = hole).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -71,17 +71,35 @@ def inpaint(depth_mm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
 
 
 class DDGSource:
-    """One frame at a time through the generator; the frame's noise comes from ``rng``."""
+    """One frame at a time through the generator; the frame's noise comes from ``rng``.
+
+    A frame at another resolution than the model's (a finer student's) is taken to be of the model's crop, the
+    default every policy uses, and goes through a generator told so (``Generator(frames=)``): the holes come
+    back at the frame's resolution and the frame keeps its own geometry."""
 
     def __init__(self, model: str | Path = DEFAULT_MODEL, steps: int = 10, grafted: bool = True) -> None:
         from .sample import Generator
 
         self.generator, self.grafted = Generator(model, steps=steps), grafted
+        self.model, self.steps, self.finer = model, steps, {}
 
     def __call__(self, depth_mm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         index = np.array([rng.integers(0, 2**62)])
-        ddg, nograft = self.generator(depth_mm[None], index)
+        ddg, nograft = self._generator(depth_mm)(depth_mm[None], index)
         return (ddg if self.grafted else nograft)[0]
+
+    def _generator(self, depth_mm: np.ndarray):
+        """The generator for this frame's resolution, made on first sight of it; a frame of another rank goes
+        to the model's own, which refuses it by name."""
+        from .sample import Generator
+
+        spec, shape = self.generator.spec, depth_mm.shape
+        if depth_mm.ndim != 2 or shape == (spec.out_height, spec.out_width):
+            return self.generator
+        if shape not in self.finer:
+            frames = replace(spec, out_height=shape[0], out_width=shape[1])
+            self.finer[shape] = Generator(self.model, steps=self.steps, frames=frames)
+        return self.finer[shape]
 
 
 SOURCES: dict[str, Callable[..., DepthSource]] = {
