@@ -35,6 +35,8 @@
 #   models/student/table2.sh nografta6k the same on DDG (a)'s depth without grafting, and its key cells
 #   models/student/table2.sh ddga192 [N]  `ddga6k`'s fine-tunes on DDG (a) depth of N (default 1000) demos at
 #                                       192x144, from `finer`'s student, and its cells under both sensors
+#   models/student/table2.sh ddga192_short  its first 8000 steps alone, under both sensors
+#   models/student/table2.sh mix192 [SHARE]  those 8000 steps with SHARE (default 0.5) of the samples on clean depth
 #   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
@@ -53,6 +55,10 @@ finetune() {  # out demos depth-source threads [fit options...]: the table's bud
         --init runs/student/gt_1000_obj1/ckpt.pt --object-loss 1 --steps 8000 --batch 32 --lr 1e-4 \
         --warmup 200 --width 16 --head-dims 32 64 128 --threads "$threads" --ckpt-every 1000 "$@"
     python -m export "$out/ckpt.pt" --ddim-steps 4 --out "$out.onnx"
+}
+
+export_x4() {  # name: runs/student/NAME's checkpoint exported to run 4 of each 16-step chunk -> runs/student/NAME_x4.onnx
+    python -m export "runs/student/$1/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/$1_x4.onnx"
 }
 
 train() {
@@ -263,7 +269,7 @@ handpose() {
         --object-loss 1 --steps 16000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 \
         --threads 1 --ckpt-every 1000 --hand-pose --object-offset
     python -m export runs/student/gt_hpo_16k/ckpt.pt --ddim-steps 4 --out runs/student/gt_hpo_16k.onnx
-    python -m export runs/student/gt_hpo_16k/ckpt.pt --ddim-steps 4 --exec-horizon 4 --out runs/student/gt_hpo_16k_x4.onnx
+    export_x4 gt_hpo_16k
     for objects in seen unseen; do
         for name in gt_hp_8k gt_hpo_8k gt_hpo_16k gt_hpo_16k_x4; do
             cell "$name" "runs/student/$name.onnx" none clean "$objects" 180 runs/table2/key
@@ -281,7 +287,7 @@ handpose() {
     finetune gt_hpo_more_40k $hpo --init runs/student/gt_hpo_more_24k/ckpt.pt --steps 16000
     finetune gt_hpo_more_56k $hpo --init runs/student/gt_hpo_more_40k/ckpt.pt --steps 16000
     for name in gt_hpo_more_8k gt_hpo_obj10_8k gt_hpo_more_24k gt_hpo_more_40k gt_hpo_more_56k; do
-        python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
+        export_x4 "$name"
         python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
             --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
         for objects in seen unseen; do
@@ -302,7 +308,7 @@ measure() {  # name training-demos [WxH]: a hand-pose student's exec-4 ONNX, its
     # object), and its clean cells at 180 episodes
     local name=$1
     heldout_60 "${@:3}"
-    python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/${name}_x4.onnx"
+    export_x4 "$name"
     probe "$name" "runs/student/heldout_60${3:+_$3}.zarr"
     probe "$name" "$2"
     python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
@@ -410,8 +416,7 @@ fine_tunes() {  # prefix demos source threads [fit options...]: `ddgb6k`'s recip
         --init "runs/student/${START:-gt6k_hpos_more_12k}/ckpt.pt"
     finetune "${prefix}_hpos_more_12k" "$demos" "$source" "$threads" $HPOS "$@" --steps 12000 \
         --init "runs/student/${prefix}_hpos_8k/ckpt.pt"
-    python -m export "runs/student/${prefix}_hpos_more_12k/ckpt.pt" --ddim-steps 4 --exec-horizon 4 \
-        --out "runs/student/${prefix}_hpos_more_12k_x4.onnx"
+    export_x4 "${prefix}_hpos_more_12k"
 }
 
 ddgb4k() {
@@ -467,7 +472,7 @@ nografta6k() {  # `ddga6k`'s fine-tunes on the same store's DDG (a) depth withou
 
 wrist_measures() {  # name: the exec-4 export of runs/student/NAME, its clean cells, the wrist's turn at the close
     # (diagnose.py turn) and its turn on the held-out demos by step (diagnose.py copycat)
-    python -m export "runs/student/$1/ckpt.pt" --ddim-steps 4 --exec-horizon 4 --out "runs/student/$1_x4.onnx"
+    export_x4 "$1"
     for objects in seen unseen; do
         cell "$1_x4" "runs/student/$1_x4.onnx" none clean "$objects" 180 runs/table2/key
     done
@@ -664,4 +669,20 @@ ddga192() {  # [N]: docs/student.md "DDG (a) at finer pixels": ddga6k's two fine
     both_sensors "${prefix}_hpos_more_12k_x4"
 }
 
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k|first_turn_fit|yaw_v|finer|ddga192 [NAME...]}"
+ddga192_short() {  # docs/student.md "A shorter DDG (a) fine-tune": ddga192's first fine-tune alone (8000 steps from
+    # finer's student, the 1000 demos), exported exec-4 like the others, under both sensors
+    export_x4 ddga192_hpos_8k
+    both_sensors ddga192_hpos_8k_x4
+}
+
+mix192() {  # [SHARE]: docs/student.md "A shorter DDG (a) fine-tune": ddga192_short's fine-tune with SHARE (default
+    # 0.5) of its samples on the same demos' clean depth (--gt-share), under both sensors
+    local share=${1:-0.5}
+    local name=mix192_${share/./}_hpos_8k
+    finetune "$name" runs/sim/demos_seen_3k_192_ddg_a.zarr ddg 2 $HPOS --prediction v_prediction --episodes 1000 \
+        --gt-share "$share" --init runs/student/gt3k192_hpos_v_36k/ckpt.pt
+    export_x4 "$name"
+    both_sensors "${name}_x4"
+}
+
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k|first_turn_fit|yaw_v|finer|ddga192|ddga192_short|mix192 [NAME...]}"

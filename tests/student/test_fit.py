@@ -77,6 +77,14 @@ def test_resume_with_another_model_is_refused(small_demos, tmp_path):
         fit_main([*fit_args(small_demos, out, 2), "--width", "16"])
     with pytest.raises(FitError, match="depth_source 'gt'"):
         fit_main([*fit_args(small_demos, out, 2), "--depth-source", "randnoise"])
+    with pytest.raises(FitError, match="gt_share 0.0, not 0.5"):
+        fit_main([*fit_args(small_demos, out, 2), "--gt-share", "0.5"])
+    with pytest.raises(FitError, match="--gt-share must be in"):
+        fit_main([*fit_args(small_demos, tmp_path / "other", 1), "--gt-share", "1.5"])
+    before = checkpoint.load(out / "ckpt.pt")
+    del before.info.data["gt_share"]  # as written before --gt-share existed
+    checkpoint.save(out / "ckpt.pt", before)
+    assert fit_main(fit_args(small_demos, out, 2)) == 0
 
 
 def test_init_starts_a_new_run_from_another_students_weights(small_demos, tmp_path):

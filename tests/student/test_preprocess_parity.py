@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
+import zarr
 
 from runtime.preprocess import FrameStack, normalise
 from trainer.dataset import DemoStore
@@ -54,6 +57,25 @@ def test_randnoise_changes_frames_but_keeps_the_layout(tiny_demos):
     noisy = DemoDataset(tiny_demos, "randnoise", 3, 16).batch(np.arange(4), np.random.default_rng(0)).depth
     assert noisy.shape == clean.shape and not np.array_equal(noisy.numpy(), clean.numpy())
     assert float(noisy.min()) >= -1.0 and float(noisy.max()) <= 1.0
+
+
+def test_gt_share_draws_each_stack_from_the_clean_or_the_sources_frames(tiny_demos, tmp_path):
+    demos = tmp_path / "demos.zarr"
+    shutil.copytree(tiny_demos, demos)
+    root = zarr.open_group(str(demos), mode="a")
+    clean = np.asarray(root["data/depth"])
+    root.create_array("data/depth_sensor", data=clean // 2 + 100)  # a source unlike the clean frames
+    steps, rng = np.arange(len(clean)), np.random.default_rng(0)
+    gt, sensor = (DemoDataset(demos, s, 3, 16).batch(steps).depth.numpy() for s in ("gt", "sensor"))
+    mixed = DemoDataset(demos, "sensor", 3, 16, gt_share=0.5).batch(steps, rng).depth.numpy()
+    from_gt = [np.array_equal(m, g) for m, g in zip(mixed, gt, strict=True)]
+    from_sensor = [np.array_equal(m, s) for m, s in zip(mixed, sensor, strict=True)]
+    assert all(a != b for a, b in zip(from_gt, from_sensor, strict=True))  # whole stacks, from one or the other
+    assert 0 < sum(from_gt) < len(steps)
+    every = DemoDataset(demos, "sensor", 3, 16, gt_share=1.0).batch(steps, rng).depth.numpy()
+    np.testing.assert_array_equal(every, gt)
+    with pytest.raises(DemoDataError, match="gt_share must be in"):
+        DemoDataset(demos, "sensor", 3, 16, gt_share=1.5)
 
 
 @pytest.mark.parametrize("source, match", [("ddg", "depth_ddg"), ("sharpie", "unknown depth source")])

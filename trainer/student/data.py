@@ -61,12 +61,13 @@ class DemoDataset:
 
     def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int,
                  hand_target: bool = False, target_reference: np.ndarray | None = None,
-                 episodes: int = 0, turn: str = "", first_frame: bool = False) -> None:
+                 episodes: int = 0, turn: str = "", first_frame: bool = False, gt_share: float = 0.0) -> None:
         """``target_reference``: the privileged targets whose mean and std standardise this store's (default:
         its own); a store that only trains the object head is standardised like the training demos.
         ``episodes``: only the store's first this many (0 = all). ``hand_target``, ``turn``: the privileged
         targets' columns (``privileged_targets``). ``first_frame``: each stack starts with its episode's first
-        frame (``StudentConfig.first_frame``)."""
+        frame (``StudentConfig.first_frame``). ``gt_share``: the share of stacks drawn from the clean depth
+        instead (``FitConfig.gt_share``)."""
         if depth_source not in DEPTH_ARRAYS:
             raise DemoDataError(f"unknown depth source {depth_source!r}; "
                                 f"choose one of {sorted(DEPTH_ARRAYS)}")
@@ -78,7 +79,12 @@ class DemoDataset:
         self.ends = first_episodes(store.episode_ends, episodes, path)
         n = int(self.ends[-1])
         check_generated(store, key, n, path)
+        if not 0 <= gt_share <= 1:
+            raise DemoDataError(f"gt_share must be in [0, 1], got {gt_share}")
         self.depth = np.asarray(store.root[key][:n])
+        mixed = gt_share and key != DEPTH_ARRAYS["gt"]
+        self.clean = np.asarray(store.root[DEPTH_ARRAYS["gt"]][:n]) if mixed else self.depth
+        self.gt_share = gt_share
         self.state = np.asarray(store.root["data/state"][:n], dtype=np.float32)
         self.action = np.asarray(store.root["data/action"][:n], dtype=np.float32)
         attrs = store.attrs
@@ -124,9 +130,10 @@ class DemoDataset:
         return np.minimum(np.arange(i, i + self.action_horizon), self._end[i] - 1)
 
     def depth_stack(self, i: int, rng: np.random.Generator | None = None) -> np.ndarray:
-        frames = self.depth[self.frame_indices(i)]
-        if self.augment is not None:
-            rng = rng if rng is not None else np.random.default_rng()
+        rng = rng if rng is not None else np.random.default_rng()
+        clean = self.gt_share > 0 and rng.random() < self.gt_share  # draws nothing unless mixing
+        frames = (self.clean if clean else self.depth)[self.frame_indices(i)]
+        if self.augment is not None and not clean:
             frames = np.stack([self.augment(f, rng) for f in frames])
         return np.stack([normalise(f, self.depth_scale, self.spec) for f in frames])
 
@@ -151,7 +158,7 @@ class DemoDataset:
         h = hashlib.sha256()
         for arr in (self.ends, self.state, self.action):
             h.update(np.ascontiguousarray(arr).tobytes())
-        return {"demos": str(self.path.resolve()), "depth_source": self.depth_source,
+        return {"demos": str(self.path.resolve()), "depth_source": self.depth_source, "gt_share": self.gt_share,
                 "episodes": len(self.ends), "steps": len(self), "demos_sha256": h.hexdigest()[:16]}
 
 

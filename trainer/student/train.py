@@ -49,6 +49,9 @@ class FitConfig:
     """Run folder: ckpt.pt (resumed if present), loss.png, summary.json."""
     depth_source: str = "gt"
     """Depth the student sees: gt | randnoise | ddg | ddg_nograft | sensor (what `collect --sensor` kept)."""
+    gt_share: float = 0.0
+    """Share of the samples whose frames are the store's clean (GT) depth instead of ``depth_source``'s,
+    drawn per sample: a fine-tune on DDG depth that keeps seeing exact depth too (0 = the source alone)."""
     episodes: int = 0
     """Train on the store's first this many episodes (0 = all): e.g. those whose DDG depth is generated
     while `trainer ddg generate` is still working through the rest."""
@@ -87,6 +90,8 @@ class FitConfig:
     def __post_init__(self) -> None:
         if self.depth_source not in DEPTH_ARRAYS:
             raise FitError(f"--depth-source {self.depth_source!r}: choose one of {sorted(DEPTH_ARRAYS)}")
+        if not 0 <= self.gt_share <= 1:
+            raise FitError(f"--gt-share must be in [0, 1], got {self.gt_share}")
         if self.episodes < 0:
             raise FitError(f"--episodes must be >= 0 (0 = all), got {self.episodes}")
         if self.keyframe_weight < 0:
@@ -177,9 +182,9 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
         ckpt = checkpoint.load(path)
         if ckpt.config != model_cfg:
             raise FitError(f"{path} was trained with {ckpt.config}, not {model_cfg}; use another --out")
-        for key in ("demos_sha256", "depth_source"):
-            if ckpt.info.data.get(key) != fingerprint[key]:
-                raise FitError(f"{path} was trained on other data ({key} {ckpt.info.data.get(key)!r}, "
+        for key, before in (("demos_sha256", None), ("depth_source", None), ("gt_share", 0.0)):
+            if ckpt.info.data.get(key, before) != fingerprint[key]:  # runs before gt_share existed had none
+                raise FitError(f"{path} was trained on other data ({key} {ckpt.info.data.get(key, before)!r}, "
                                f"not {fingerprint[key]!r}); use another --out")
         return ckpt
     info = TrainingInfo(depth_spec=data.spec, action_scale=data.action_scale,
@@ -283,7 +288,7 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
     if cfg.batch % world:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
     data = DemoDataset.stacked_as(cfg.demos, cfg.depth_source, model_cfg, hand_target=model_cfg.hand_target,
-                                  episodes=cfg.episodes, turn=model_cfg.yaw_target)
+                                  episodes=cfg.episodes, turn=model_cfg.yaw_target, gt_share=cfg.gt_share)
     if (model_cfg.object_offset or model_cfg.seen_offset or model_cfg.yaw_target) and not cfg.object_loss:
         raise FitError("--object-offset, --seen-offset, --seen-turn and --seen-yaw read the object head's "
                        "estimate: they need --object-loss > 0")
