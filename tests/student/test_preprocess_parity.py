@@ -70,7 +70,8 @@ def test_gt_share_draws_each_stack_from_the_clean_or_the_sources_frames(tiny_dem
     mixed = DemoDataset(demos, "sensor", 3, 16, gt_share=0.5).batch(steps, rng).depth.numpy()
     from_gt = [np.array_equal(m, g) for m, g in zip(mixed, gt, strict=True)]
     from_sensor = [np.array_equal(m, s) for m, s in zip(mixed, sensor, strict=True)]
-    assert all(a != b for a, b in zip(from_gt, from_sensor, strict=True))  # whole stacks, from one or the other
+    # whole stacks, each from one or the other
+    assert all(a != b for a, b in zip(from_gt, from_sensor, strict=True))
     assert 0 < sum(from_gt) < len(steps)
     every = DemoDataset(demos, "sensor", 3, 16, gt_share=1.0).batch(steps, rng).depth.numpy()
     np.testing.assert_array_equal(every, gt)

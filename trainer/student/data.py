@@ -158,8 +158,9 @@ class DemoDataset:
         h = hashlib.sha256()
         for arr in (self.ends, self.state, self.action):
             h.update(np.ascontiguousarray(arr).tobytes())
-        return {"demos": str(self.path.resolve()), "depth_source": self.depth_source, "gt_share": self.gt_share,
-                "episodes": len(self.ends), "steps": len(self), "demos_sha256": h.hexdigest()[:16]}
+        return {"demos": str(self.path.resolve()), "depth_source": self.depth_source,
+                "gt_share": self.gt_share, "episodes": len(self.ends), "steps": len(self),
+                "demos_sha256": h.hexdigest()[:16]}
 
 
 def first_episodes(ends: np.ndarray, episodes: int, path: str | Path) -> np.ndarray:

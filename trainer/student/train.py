@@ -183,8 +183,9 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
         if ckpt.config != model_cfg:
             raise FitError(f"{path} was trained with {ckpt.config}, not {model_cfg}; use another --out")
         for key, before in (("demos_sha256", None), ("depth_source", None), ("gt_share", 0.0)):
-            if ckpt.info.data.get(key, before) != fingerprint[key]:  # runs before gt_share existed had none
-                raise FitError(f"{path} was trained on other data ({key} {ckpt.info.data.get(key, before)!r}, "
+            trained_on = ckpt.info.data.get(key, before)  # runs from before --gt-share record none
+            if trained_on != fingerprint[key]:
+                raise FitError(f"{path} was trained on other data ({key} {trained_on!r}, "
                                f"not {fingerprint[key]!r}); use another --out")
         return ckpt
     info = TrainingInfo(depth_spec=data.spec, action_scale=data.action_scale,
