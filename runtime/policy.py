@@ -66,6 +66,11 @@ class Policy:
             print(f"runtime: WARNING {self.path} is an UNTRAINED policy (metadata trained=false); "
                   "it will not grasp anything", file=sys.stderr)
 
+    def reseed(self, seed: int) -> None:
+        """Restart the start noise's generator from ``seed``: the same inputs then give the same actions
+        (the evaluator reseeds from each episode's seed, so an episode does not depend on those before it)."""
+        self._rng = np.random.default_rng(seed)
+
     @property
     def noise_shape(self) -> tuple[int, int, int]:
         return (1, self.metadata.action_horizon, self.metadata.action_dim)

@@ -72,3 +72,36 @@ def test_a_first_frame_student_leads_every_stack_with_the_episodes_first_frame(f
         np.testing.assert_array_equal(stacks[-1][0], first)  # step 8's stack, the first frame's 8 steps old
         np.testing.assert_array_equal(stacks[-1][-1], normalise(frames[8], 0.001, policy.meta.preprocess))
     assert len(stacks) == 4 and stacks[-1].shape == (4, 96, 128)
+
+
+def test_an_episode_acts_the_same_whatever_ran_before_it_in_the_process(untrained_student_onnx):
+    """Evaluation workers take jobs in no fixed order: an episode's start noise and sensor draws must come
+    from its own seed, or the same command measures another success rate each time."""
+    from trainer.sim.env import EnvConfig, GraspEnv
+    from trainer.sim.rollout import Job, run_episode
+    from trainer.sim.sensors import make_sensor
+
+    env = GraspEnv(EnvConfig(objects=("cube",), max_steps=12))
+    fresh = lambda: (make_policy(f"student:{untrained_student_onnx}"), make_sensor("randnoise"))  # noqa: E731
+    try:
+        policy, sensor = fresh()
+        run_episode(env, policy, Job(5, "cube"), sensor=sensor)
+        after = run_episode(env, policy, Job(6, "cube"), sensor=sensor, record=True)
+        policy, sensor = fresh()
+        alone = run_episode(env, policy, Job(6, "cube"), sensor=sensor, record=True)
+        other = run_episode(env, policy, Job(7, "cube"), sensor=sensor, record=True)
+    finally:
+        env.close()
+    np.testing.assert_array_equal(after.frames["depth_sensor"], alone.frames["depth_sensor"])
+    np.testing.assert_array_equal(after.frames["action"], alone.frames["action"])
+    assert not np.array_equal(other.frames["depth_sensor"][0], alone.frames["depth_sensor"][0])
+
+
+def test_reseeding_the_runtime_policy_repeats_its_start_noise(untrained_student_onnx):
+    policy = make_policy(f"student:{untrained_student_onnx}").runtime
+    stack, state = np.zeros((3, 96, 128), np.float32), np.zeros(8, np.float32)
+    policy.reseed(3)
+    first = policy(stack, state)
+    assert not np.array_equal(policy(stack, state), first), "the start noise must matter to this test"
+    policy.reseed(3)
+    np.testing.assert_array_equal(policy(stack, state), first)

@@ -126,13 +126,28 @@ def _edge_map(depth_mm: np.ndarray, grad_mm: float) -> np.ndarray:
 
 
 
-def sensor_factory(name: str) -> Callable[[str], Callable[[np.ndarray], np.ndarray]]:
-    """Adapter to ``trainer.sim.sensors``' factory shape, with a seeded generator of its own. ARG is
-    ``[model=DIR][,steps=K]`` (defaults: the shipped model, 10 DDIM steps); a bare ARG is the model dir."""
-    def factory(arg: str) -> Callable[[np.ndarray], np.ndarray]:
-        options = parse_sensor_arg(name, arg)
-        source, rng = get_source(name, **options), np.random.default_rng(0)
-        return lambda depth: source(depth, rng)
+class SeededSource:
+    """A depth source as an evaluation sensor (``trainer.sim.sensors.SeededSensor``): its draws come from a
+    generator that each episode restarts from its seed."""
+
+    STREAM = 0x5E45
+    """Mixed into the episode's seed, so the sensor's draws are not the policy's."""
+
+    def __init__(self, source: Callable[[np.ndarray, np.random.Generator], np.ndarray]) -> None:
+        self.source, self.rng = source, np.random.default_rng(0)
+
+    def reseed(self, seed: int) -> None:
+        self.rng = np.random.default_rng([seed, self.STREAM])
+
+    def __call__(self, depth: np.ndarray) -> np.ndarray:
+        return self.source(depth, self.rng)
+
+
+def sensor_factory(name: str) -> Callable[[str], SeededSource]:
+    """Adapter to ``trainer.sim.sensors``' factory shape. ARG is ``[model=DIR][,steps=K]`` (defaults: the
+    shipped model, 10 DDIM steps); a bare ARG is the model dir."""
+    def factory(arg: str) -> SeededSource:
+        return SeededSource(get_source(name, **parse_sensor_arg(name, arg)))
     return factory
 
 

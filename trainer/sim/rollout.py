@@ -16,7 +16,7 @@ import numpy as np
 from runtime.preprocess import crop_resize, restore_holes
 from trainer.policies import Observation, make_policy
 from trainer.sim.env import OBJECT_FROM_HAND, EnvConfig, GraspEnv
-from trainer.sim.sensors import SceneSensor, Sensor, make_sensor
+from trainer.sim.sensors import SceneSensor, SeededSensor, Sensor, make_sensor
 
 
 @dataclass(frozen=True)
@@ -45,12 +45,15 @@ class Rollout:
 
 
 def start_episode(env: GraspEnv, policy, job: Job, sensors: Iterable[Sensor | None] = ()) -> dict:
-    """Reset the env to ``job``, every scene sensor to its seed (same scene, same noise) and the policy to
-    the episode; returns the env's reset info."""
+    """Reset the env to ``job``, every sensor to its seed (same scene, same noise) and the policy to the
+    episode; returns the env's reset info. An episode so depends on its job alone, not on the jobs its worker
+    ran before it."""
     _, info = env.reset(seed=job.seed, options={"kind": job.kind})
     for sensor in sensors:
         if isinstance(sensor, SceneSensor):
             sensor.reset(env.world, job.seed)
+        elif isinstance(sensor, SeededSensor):
+            sensor.reseed(job.seed)
     policy.reset(info)
     return info
 

@@ -27,6 +27,15 @@ class SceneSensor(Protocol):
         """uint16 depth at the stream resolution, sensor units (mm), 0 = no data."""
 
 
+@runtime_checkable
+class SeededSensor(Protocol):
+    """A sensor that maps clean depth with random draws, restarted from each episode's seed."""
+
+    def reseed(self, seed: int) -> None: ...
+
+    def __call__(self, depth: np.ndarray) -> np.ndarray: ...
+
+
 Sensor = Callable[[np.ndarray], np.ndarray] | SceneSensor
 Factory = Callable[[str], Sensor]
 

@@ -28,8 +28,13 @@ class StudentOnnxPolicy:
         self.queue: deque[np.ndarray] = deque()
 
     def reset(self, env_info: dict | None = None) -> None:
+        """A new episode: empty history; the start noise restarts from the episode's seed where the env names
+        it, so an episode's actions do not depend on which episodes this process ran before."""
         self.frames.reset()
         self.queue.clear()
+        seed = (env_info or {}).get("episode", {}).get("seed")
+        if seed is not None:
+            self.runtime.reseed(seed)
 
     def act(self, obs: Observation) -> np.ndarray:
         if len(self.queue) < self.meta.obs_horizon:  # older frames leave the stack before the next inference
