@@ -1,10 +1,12 @@
 """``python -m trainer evaluate``: closed-loop grasp success of a policy in the simulated world.
 
-Episodes cycle through the chosen object kinds (equal counts per kind) with seeds seed, seed+1, ...;
-prints a per-object table and writes {"success_rate", "ci95", "episodes", "per_object": {kind: rate}, ...} as
-JSON; ``ci95`` is the Wilson score interval of the success rate. ``first_close`` says where the hand was when
-the policy first closed the gripper (object minus grasp site, cm, world frame): a policy that fails by
-closing beside or above its objects shows it there.
+Episodes cycle through the chosen object kinds (equal counts per kind) with seeds seed, seed+1, ...; an
+episode's randomness (scene, sensor draws, a student's start noise) comes from its seed alone, so the same
+command gives the same result on any number of ``--workers``. Prints a per-object table and writes
+{"success_rate", "ci95", "episodes", "per_object": {kind: rate}, ...} as JSON; ``ci95`` is the Wilson score
+interval of the success rate. ``first_close`` says where the hand was when the policy first closed the gripper
+(object minus grasp site, cm, world frame): a policy that fails by closing beside or above its objects shows
+it there.
 """
 
 from __future__ import annotations
