@@ -12,8 +12,7 @@ from torch import nn
 
 from runtime.metadata import METADATA_KEY, PolicyMetadata
 from trainer.student.checkpoint import Checkpoint, sha256
-from trainer.student.ddim import ddim_plan, ddim_update
-from trainer.student.model import StudentPolicy
+from trainer.student.ddim import ddim_plan, denoise
 
 INPUT_NAMES = ("depth", "state", "noise")
 OUTPUT_NAMES = ("actions",)
@@ -24,7 +23,7 @@ class UnrolledPolicy(nn.Module):
     """(depth, state, noise) -> actions in robot units; the DDIM timesteps are Python constants, so tracing
     unrolls the loop and bakes each step's coefficients into the graph."""
 
-    def __init__(self, policy: StudentPolicy, ddim_steps: int, action_scale: float,
+    def __init__(self, policy: nn.Module, ddim_steps: int, action_scale: float,
                  spacing: str = "leading") -> None:
         super().__init__()
         self.policy = policy
@@ -35,10 +34,7 @@ class UnrolledPolicy(nn.Module):
 
     def forward(self, depth: torch.Tensor, state: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
         obs = self.policy.encode(depth, state)
-        x = noise
-        for step in self.plan:
-            steps = torch.full((x.shape[0],), step.timestep, dtype=torch.int64)
-            x = ddim_update(x, self.policy(x, steps, obs), step, self.policy.config.prediction)
+        x = denoise(self.policy, obs, noise, self.plan, self.policy.config.prediction)
         return self.policy.action_norm.unnormalise(x) * self.robot_scale
 
 

@@ -12,6 +12,7 @@ Objects start at random in a 40 cm (y) x 30 cm (x) workspace centred 50 cm in fr
 
 from __future__ import annotations
 
+import copy
 import os
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -236,6 +237,14 @@ class World:
     def step(self, dt: float) -> None:
         """Advance physics by ``dt`` seconds (rounded to whole timesteps, at least one)."""
         mujoco.mj_step(self.model, self.data, nstep=max(1, round(dt / self.model.opt.timestep)))
+
+    def snapshot(self) -> mujoco.MjData:
+        """A copy of the simulation state, derived quantities included, to ``restore`` after running ahead
+        (e.g. to label a state with an expert's next actions): the world is then exactly as it was."""
+        return copy.copy(self.data)
+
+    def restore(self, snapshot: mujoco.MjData) -> None:
+        mujoco.mj_copyData(self.data, self.model, snapshot)
 
     # --- readings -----------------------------------------------------------------------------------
     @property

@@ -7,6 +7,10 @@ Layout (names are a contract):
     data/rgb     uint8   [N, 96, 128, 3]  optional, same crop and resize as depth
     data/depth_sensor  uint16 [N, 96, 128]  optional: what the sensor ``attrs["sensor"]`` (e.g. stereo)
                        showed the policy at that step, as the policy sees it (``collect --sensor``)
+    data/labels  float32 [N, 12]       optional: the frame's privileged perception labels (trainer.sim.labels)
+    data/chunk   float32 [N, Hc, 8]    optional, with labels: the expert's next Hc actions from the step's
+                       state (its label of a state a learner reached: ``trainer.student.dagger``); Hc = attrs
+                       ``chunk_horizon``. ``data/action`` is then what was executed.
     meta/episode_ends       int64   [E]     cumulative end index of each stored (successful) episode
     meta/kind               str     [E]     object kind
     meta/seed               int64   [E]
@@ -15,7 +19,7 @@ Layout (names are a contract):
     meta/camera_extrinsics  float64 [E, 4, 4]  world-from-camera, OpenCV axes
     meta/randomisation      str     [E]     JSON of the episode's draws (hil_sim.world.Episode)
     attrs: depth_spec, action_scale, control_rate_hz, depth_scale (0.001), attempted, succeeded, failed,
-           teacher, seed, sensor (with data/depth_sensor)
+           teacher, seed, sensor (with data/depth_sensor), chunk_horizon (with data/labels)
 Episodes are appended whole: data arrays first, then the per-episode meta, then ``episode_ends`` last, so
 an interrupted write is cut back to the last complete episode on the next open.
 """
@@ -31,6 +35,7 @@ import zarr
 from zarr.codecs import BloscCodec
 
 from runtime.preprocess import DepthSpec
+from trainer.sim.labels import LABELS
 
 DEPTH_SCALE = 0.001
 _CHUNK_STEPS = 512
@@ -58,6 +63,8 @@ class EpisodeRecord:
     randomisation: dict
     rgb: np.ndarray | None = None
     depth_sensor: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    chunk: np.ndarray | None = None
 
 
 def sizes(spec: DepthSpec) -> str:
@@ -88,15 +95,21 @@ class DemoStore:
 
     @classmethod
     def create(cls, path: str | Path, *, spec: DepthSpec, action_scale: float, control_rate_hz: float,
-               rgb: bool = False, sensor: str | None = None, attrs: dict | None = None) -> DemoStore:
+               rgb: bool = False, sensor: str | None = None, chunk_horizon: int = 0,
+               attrs: dict | None = None) -> DemoStore:
         """A new empty store, or the existing one at ``path`` reopened for appending (resume). ``sensor``: the
-        store keeps that sensor's frames too (``data/depth_sensor``); a store to resume must keep the same."""
+        store keeps that sensor's frames too (``data/depth_sensor``); a store to resume must keep the same.
+        ``chunk_horizon`` > 0: it keeps perception labels and the expert's action chunks of that length."""
         path = Path(path)
         if (path / "zarr.json").is_file():
             store = cls.open(path, mode="a")
             if store.attrs.get("sensor") != sensor:
                 raise DatasetError(f"{str(path)!r} keeps the frames of sensor {store.attrs.get('sensor')!r}, "
                                    f"not {sensor!r}: resume it with the same sensor, or choose another store")
+            kept = store.attrs.get("chunk_horizon", 0)
+            if kept != chunk_horizon:
+                raise DatasetError(f"{str(path)!r} keeps expert chunks of {kept} steps, not {chunk_horizon}: "
+                                   "choose another store")
             if store.depth_spec != spec:
                 raise DatasetError(f"{str(path)!r} keeps {sizes(store.depth_spec)}, not {sizes(spec)}: "
                                    "resume it with the same resolution, or choose another store")
@@ -116,6 +129,9 @@ class DemoStore:
             arrays["data/rgb"] = ((h, w, 3), np.uint8)
         if sensor is not None:
             arrays["data/depth_sensor"] = ((h, w), np.uint16)
+        if chunk_horizon:
+            arrays["data/labels"] = ((len(LABELS),), np.float32)
+            arrays["data/chunk"] = ((chunk_horizon, 8), np.float32)
         for name, (shape, dtype) in arrays.items():
             root.create_array(name, shape=(0, *shape), chunks=(_CHUNK_STEPS, *shape), dtype=dtype,
                               compressors=BloscCodec(cname="zstd", clevel=5, shuffle="bitshuffle"))
@@ -125,7 +141,8 @@ class DemoStore:
         root.attrs.update({"depth_spec": spec.to_dict(), "action_scale": action_scale,
                            "control_rate_hz": control_rate_hz, "depth_scale": DEPTH_SCALE,
                            "attempted": 0, "succeeded": 0, "failed": 0, **(attrs or {}),
-                           **({"sensor": sensor} if sensor is not None else {})})
+                           **({"sensor": sensor} if sensor is not None else {}),
+                           **({"chunk_horizon": chunk_horizon} if chunk_horizon else {})})
         try:
             staging.rename(path)
         except OSError as exc:
@@ -148,7 +165,8 @@ class DemoStore:
     def append(self, ep: EpisodeRecord) -> None:
         steps = len(ep.action)
         arrays = {"depth": ep.depth, "state": ep.state, "action": ep.action}
-        for name, what in (("rgb", "RGB"), ("depth_sensor", "sensor frames")):
+        for name, what in (("rgb", "RGB"), ("depth_sensor", "sensor frames"), ("labels", "labels"),
+                           ("chunk", "expert chunks")):
             if name in self._data_arrays():
                 if getattr(ep, name) is None:
                     raise DatasetError(f"this store keeps {what} but the episode has none")
@@ -168,10 +186,10 @@ class DemoStore:
         ends.append(np.array([end], np.int64))
 
     def count(self, *, success: bool) -> None:
-        """Record one attempt in the store's counters."""
-        attrs = self.root.attrs
-        attrs.update({"attempted": int(attrs["attempted"]) + 1, "succeeded": len(self.episode_ends),
-                      "failed": int(attrs["failed"]) + (not success)})
+        """Record one attempt in the store's counters (a DAgger round keeps its failed episodes too)."""
+        a = self.root.attrs
+        a.update({"attempted": int(a["attempted"]) + 1, "succeeded": int(a["succeeded"]) + success,
+                  "failed": int(a["failed"]) + (not success)})
 
     # --- reading ------------------------------------------------------------------------------------
     @property

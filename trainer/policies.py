@@ -5,7 +5,8 @@ A policy has ``reset(env_info)`` (the dict ``GraspEnv.reset`` returns) and ``act
 holding all three views of the world, so a privileged teacher and a depth student share one loop.
 
 Specs: ``scripted`` | ``reactive`` | ``ppo:CHECKPOINT`` | ``student:ONNX`` | ``takeover:ONNX`` (the student,
-then the reactive expert: ``trainer.student.takeover``). Other engineers' modules provide
+then the reactive expert: ``trainer.student.takeover``) | ``oracle:CKPT[@BIAS_CM]`` (the action head on the
+true object facts: ``trainer.student.oracle_policy``). Other engineers' modules provide
 ``trainer.teacher.ppo.load(path)`` and ``trainer.student.onnx_policy.load(path)``; they are imported only
 when asked for. Add a kind by adding one entry to ``LOADERS``.
 """
@@ -81,9 +82,11 @@ LOADERS: dict[str, Callable[[str], Policy]] = {
     "ppo": _lazy("trainer.teacher.ppo", "ppo"),
     "student": _lazy("trainer.student.onnx_policy", "student"),
     "takeover": _lazy("trainer.student.takeover", "takeover"),
+    "oracle": _lazy("trainer.student.oracle_policy", "oracle"),
 }
 
-NEEDS_DEPTH = {"scripted": False, "reactive": False, "ppo": False, "student": True, "takeover": True}
+NEEDS_DEPTH = {"scripted": False, "reactive": False, "ppo": False, "student": True, "takeover": True,
+               "oracle": False}
 """Whether the env must render depth for this kind (privileged teachers run much faster without)."""
 
 
@@ -91,7 +94,7 @@ def parse(spec: str) -> tuple[str, str]:
     kind, _, arg = spec.partition(":")
     if kind not in LOADERS:
         raise PolicyError(f"unknown policy {spec!r}; expected one of: "
-                          "scripted, reactive, ppo:CKPT, student:ONNX, takeover:ONNX")
+                          "scripted, reactive, ppo:CKPT, student:ONNX, takeover:ONNX, oracle:CKPT[@BIAS_CM]")
     return kind, arg
 
 

@@ -21,6 +21,7 @@ stream up to sub-pixel sampling, see ``exact_frame``) and ``state`` (7 joints + 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import gymnasium as gym
@@ -115,10 +116,7 @@ class GraspEnv(gym.Env):
         action = np.asarray(action, dtype=np.float64)
         if action.shape != (ACTION_DIM,) or not np.all(np.isfinite(action)):
             raise ValueError(f"action must be {ACTION_DIM} finite numbers, got shape {action.shape}")
-        self._gripper = 1.0 if action[7] > 0 else -1.0
-        q_target = self.world.q + self.config.action_scale * np.clip(action[:7], -1.0, 1.0)
-        self.world.set_targets(q_target, self._gripper)
-        self.world.step(self._dt)
+        self._act(action)
         self._steps += 1
         if not np.all(np.isfinite(self.world.data.qpos)):
             return self.observation(), 0.0, True, False, {**self._info(False), "unstable": True}
@@ -132,6 +130,21 @@ class GraspEnv(gym.Env):
         fell = self.world.object_pose()[0][2] < TABLE_Z - 0.1
         info = {**self._info(success), "terms": terms, "grasped": status.grasped}
         return self.observation(), r, success or fell, self._steps >= self.config.max_steps, info
+
+    def lookahead(self, actor: Callable[[np.ndarray], np.ndarray], steps: int) -> np.ndarray:
+        """The actions [steps, 8] ``actor`` (a function of the 40-d observation, e.g. ``ReactiveExpert.act``)
+        takes over the next ``steps`` steps from this state, found by running the physics ahead and restoring
+        it: an expert's action chunk at a state the expert did not reach itself, DAgger's label. The env is
+        left as it was (physics state, gripper command, counters); no frame is rendered."""
+        saved, gripper, actions = self.world.snapshot(), self._gripper, []
+        try:
+            for _ in range(steps):
+                actions.append(np.asarray(actor(self.observation()), np.float32))
+                self._act(actions[-1])
+        finally:
+            self.world.restore(saved)
+            self._gripper = gripper
+        return np.stack(actions)
 
     def observation(self) -> np.ndarray:
         w = self.world
@@ -161,6 +174,13 @@ class GraspEnv(gym.Env):
         self.world.close()
 
     # --- internals ---------------------------------------------------------------------------------
+    def _act(self, action: np.ndarray) -> None:
+        """Paper eq. 1 and the gripper command, then one control period of physics."""
+        self._gripper = 1.0 if action[7] > 0 else -1.0
+        q_target = self.world.q + self.config.action_scale * np.clip(action[:7], -1.0, 1.0)
+        self.world.set_targets(q_target, self._gripper)
+        self.world.step(self._dt)
+
     def _info(self, success: bool) -> dict:
         info = {"state": self.world.joint_state(), "success": success, "steps": self._steps}
         if self.config.render_depth:

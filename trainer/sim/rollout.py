@@ -7,7 +7,7 @@ forked), then runs ``Job``s; results come back in submission order so stores sta
 from __future__ import annotations
 
 import multiprocessing as mp
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -154,14 +154,21 @@ def rollouts(config: EnvConfig, policy_spec: str, jobs: Iterable[Job], *, worker
              action_noise: float = 0.0) -> Iterator[Rollout]:
     """Run ``jobs`` in order; ``workers`` > 1 uses that many processes, each building its own env,
     policy and sensor from the specs."""
+    initargs = (config, policy_spec, record, sensor_spec, restore, action_noise)
+    yield from in_workers(_init, initargs, _work, jobs, workers, _WORKER)
+
+
+def in_workers(init: Callable, initargs: tuple, work: Callable, jobs: Iterable, workers: int,
+               state: dict) -> Iterator:
+    """``work(job)`` for each job, results in order: in this process, or in ``workers`` spawned ones, each
+    set up once by ``init(*initargs)`` (which puts its env, as "env", into the module dict ``state``)."""
     if workers <= 1:
-        _init(config, policy_spec, record, sensor_spec, restore, action_noise)
+        init(*initargs)
         try:
-            yield from map(_work, jobs)
+            yield from map(work, jobs)
         finally:
-            _WORKER.pop("env").close()
+            state.pop("env").close()
         return
     ctx = mp.get_context("spawn")
-    initargs = (config, policy_spec, record, sensor_spec, restore, action_noise)
-    with ctx.Pool(workers, initializer=_init, initargs=initargs) as pool:
-        yield from pool.imap(_work, jobs)
+    with ctx.Pool(workers, initializer=init, initargs=initargs) as pool:
+        yield from pool.imap(work, jobs)

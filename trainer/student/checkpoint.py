@@ -10,10 +10,11 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torch import nn
 
 from runtime.preprocess import DepthSpec
 from trainer.student.config import StudentConfig
-from trainer.student.model import StudentPolicy
+from trainer.student.model import build_policy
 
 FORMAT = "diffudepgrasp.student-ckpt/1"
 
@@ -54,9 +55,9 @@ class Checkpoint:
     step: int = 0
     losses: list[float] = field(default_factory=list)
 
-    def policy(self) -> StudentPolicy:
+    def policy(self) -> nn.Module:
         """The inference network (EMA weights), in eval mode."""
-        net = StudentPolicy(self.config)
+        net = build_policy(self.config)
         net.load_state_dict(self.ema)
         return net.eval()
 
@@ -86,7 +87,7 @@ def load(path: Path) -> Checkpoint:
 def fresh(config: StudentConfig, info: TrainingInfo, seed: int = 0) -> Checkpoint:
     """A freshly initialised student with identity normalisation (the untrained fixture)."""
     torch.manual_seed(seed)
-    state = StudentPolicy(config).state_dict()
+    state = build_policy(config).state_dict()
     return Checkpoint(config, info, ema={k: v.clone() for k, v in state.items()}, model=state)
 
 

@@ -1,4 +1,5 @@
-"""``python -m trainer student fit|init|probe ...``; fit also runs under ``torchrun --nproc_per_node N``."""
+"""``python -m trainer student fit|recipe|init|probe ...``; fit also runs under ``torchrun --nproc_per_node
+N``."""
 
 from __future__ import annotations
 
@@ -31,12 +32,18 @@ def cmd_fit(argv: list[str]) -> int:
     return fit_main(argv)
 
 
+def cmd_recipe(argv: list[str]) -> int:
+    from trainer.student.recipe import main as recipe_main
+    return recipe_main(argv)
+
+
 def cmd_probe(argv: list[str]) -> int:
     from trainer.student.probe import main as probe_main
     return probe_main(argv)
 
 
 HANDLERS = {"fit": (cmd_fit, "train the student on demos (eq. 10, EMA, checkpoints, resume)"),
+            "recipe": (cmd_recipe, "the student that grasps: demos, DAgger rounds, export, evaluation"),
             "init": (cmd_init, "write an untrained checkpoint (test fixtures)"),
             "probe": (cmd_probe, "offline action error of an exported student against demos")}
 

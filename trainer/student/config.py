@@ -6,6 +6,7 @@ import json
 from dataclasses import asdict, dataclass, fields
 
 PREDICTIONS = ("epsilon", "v_prediction")
+PERCEPTIONS = ("", "depth", "privileged")
 
 
 class StudentConfigError(ValueError):
@@ -77,6 +78,16 @@ class StudentConfig:
     cannot show where the fingers are out of view and the wrist may start anywhere (``trainer collect
     --wrist-noise``). Then part of the exported graph."""
 
+    perception: str = ""
+    """How the action head learns where the object is. "depth": dense privileged perception
+    (``trainer.student.perception``): keypoints at stride 8 supervised to the object's and the hand's pixels
+    and a readout of the object's offset from the hand, grasp direction and size, which the head reads with
+    the hand's pose; the recipe of ``trainer student recipe``. "privileged": the same head reading the true
+    facts instead of depth (no encoder; the oracle, milestone M0; not exportable). "": the earlier students'
+    object head and its options below."""
+    fine_keypoints: int = 16
+    """``perception="depth"``: keypoints of the stride-8 map (the first two are the supervised ones)."""
+
     @property
     def depth_channels(self) -> int:
         """Depth frames in the encoder's input: the last ``obs_horizon``, after the first one if kept."""
@@ -90,6 +101,16 @@ class StudentConfig:
     def __post_init__(self) -> None:
         if self.prediction not in PREDICTIONS:
             raise StudentConfigError(f"prediction must be one of {PREDICTIONS}, got {self.prediction!r}")
+        if self.perception not in PERCEPTIONS:
+            raise StudentConfigError(f"perception must be one of {PERCEPTIONS}, got {self.perception!r}")
+        earlier = [name for name in ("hand_target", "hand_pose", "object_offset", "seen_offset", "seen_turn",
+                                     "seen_yaw", "first_frame") if getattr(self, name)]
+        if self.perception and earlier:
+            raise StudentConfigError(f"perception={self.perception!r} reads the hand pose and its own facts: "
+                                     f"drop {', '.join(earlier)}")
+        if self.fine_keypoints < 2:
+            raise StudentConfigError(f"fine_keypoints must be >= 2 (two are supervised), got "
+                                     f"{self.fine_keypoints}")
         if self.seen_turn and self.seen_yaw:
             raise StudentConfigError("seen_turn and seen_yaw are two ways to read the yaw: choose one")
         if self.seen_yaw and not (self.hand_target and self.hand_pose):

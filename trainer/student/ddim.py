@@ -78,3 +78,14 @@ def ddim_update(sample: torch.Tensor, output: torch.Tensor, step: DdimStep, pred
     """One eta=0 DDIM step x_t -> x_{t-stride} from the network's output."""
     x0, eps = clean_and_noise(sample, output, step.sqrt_alpha, step.sqrt_one_minus_alpha, prediction)
     return step.sqrt_alpha_prev * x0.clamp(-1.0, 1.0) + step.sqrt_one_minus_alpha_prev * eps
+
+
+def denoise(policy, obs: torch.Tensor, noise: torch.Tensor, plan: list[DdimStep],
+            prediction: str) -> torch.Tensor:
+    """The DDIM run of ``plan`` from ``noise`` [B, Ha, A] with the denoiser ``policy(sample, steps, obs)``:
+    normalised actions. Timesteps are Python constants, so tracing it unrolls the loop (``export.graph``)."""
+    x = noise
+    for step in plan:
+        steps = torch.full((x.shape[0],), step.timestep, dtype=torch.int64)
+        x = ddim_update(x, policy(x, steps, obs), step, prediction)
+    return x

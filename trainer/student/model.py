@@ -16,73 +16,11 @@ import torch
 from torch import nn
 
 from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET, tcp_frame
+from trainer.sim.labels import GRASP_YAW, READOUT
 from trainer.student.config import StudentConfig
 from trainer.student.data import column_scale
 from trainer.student.normaliser import RangeNormaliser
-
-
-def _groups(channels: int) -> int:
-    return max(1, channels // 16)
-
-
-class BasicBlock(nn.Module):
-    def __init__(self, c_in: int, c_out: int, stride: int) -> None:
-        super().__init__()
-        self.conv1 = nn.Conv2d(c_in, c_out, 3, stride, 1, bias=False)
-        self.norm1 = nn.GroupNorm(_groups(c_out), c_out)
-        self.conv2 = nn.Conv2d(c_out, c_out, 3, 1, 1, bias=False)
-        self.norm2 = nn.GroupNorm(_groups(c_out), c_out)
-        self.shortcut = nn.Identity()
-        if stride != 1 or c_in != c_out:
-            self.shortcut = nn.Sequential(nn.Conv2d(c_in, c_out, 1, stride, bias=False),
-                                          nn.GroupNorm(_groups(c_out), c_out))
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        y = torch.relu(self.norm1(self.conv1(x)))
-        return torch.relu(self.norm2(self.conv2(y)) + self.shortcut(x))
-
-
-class SpatialSoftmax(nn.Module):
-    """Feature map [B, C, h, w] -> [B, 2K]: the expected image position (x, y in [-1, 1]) of each of K
-    learned keypoint maps. Global average pooling throws away *where* the object is, which is the one
-    thing a grasping policy must read from depth; diffusion_policy (after robomimic) pools this way."""
-
-    def __init__(self, channels: int, keypoints: int) -> None:
-        super().__init__()
-        self.keypoints = nn.Conv2d(channels, keypoints, 1)
-        self.out_features = 2 * keypoints
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        b, _, h, w = x.shape
-        grid = torch.stack([_coords(w).repeat(h), _coords(h).repeat_interleave(w)], dim=-1)  # [h*w, (x, y)]
-        attention = torch.softmax(self.keypoints(x).flatten(2), dim=-1)  # [B, K, h*w]
-        return (attention @ grid).reshape(b, -1)
-
-
-def _coords(n: int) -> torch.Tensor:
-    """n pixel centres spread over [-1, 1] (float32 arithmetic, which exports as plain constants)."""
-    return torch.arange(n, dtype=torch.float32) * (2.0 / max(n - 1, 1)) - 1.0
-
-
-class ResNet18(nn.Module):
-    """ResNet-18 layout (stem + 4 stages of 2 basic blocks), trained from scratch: no weights to fetch,
-    pooled by ``SpatialSoftmax`` instead of the classifier's global average."""
-
-    def __init__(self, in_channels: int, width: int, keypoints: int) -> None:
-        super().__init__()
-        self.stem = nn.Sequential(nn.Conv2d(in_channels, width, 7, 2, 3, bias=False),
-                                  nn.GroupNorm(_groups(width), width), nn.ReLU(), nn.MaxPool2d(3, 2, 1))
-        chans = [width, 2 * width, 4 * width, 8 * width]
-        blocks = []
-        for i, c in enumerate(chans):
-            c_in = chans[max(i - 1, 0)]
-            blocks += [BasicBlock(c_in, c, 1 if i == 0 else 2), BasicBlock(c, c, 1)]
-        self.blocks = nn.Sequential(*blocks)
-        self.pool = SpatialSoftmax(chans[-1], keypoints)
-        self.out_features = self.pool.out_features
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.pool(self.blocks(self.stem(x)))
+from trainer.student.perception import HAND_FEATURES, Perception, ResNet18, SpatialSoftmax  # noqa: F401
 
 
 def step_embedding(steps: torch.Tensor, dim: int) -> torch.Tensor:
@@ -153,9 +91,6 @@ class ConditionalUnet1d(nn.Module):
         for (res1, res2, up), skip in zip(self.up, reversed(skips[1:]), strict=True):
             x = up(res2(res1(torch.cat([x, skip], dim=1), cond), cond))
         return self.final(x).transpose(1, 2)
-
-
-HAND_FEATURES = 9
 
 
 def state_inputs(config: StudentConfig) -> int:
@@ -274,3 +209,68 @@ class StudentPolicy(nn.Module):
 
     def forward(self, noisy_actions: torch.Tensor, steps: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
         return self.head(noisy_actions, steps, obs)
+
+
+class PerceptionStudent(nn.Module):
+    """The recipe's student (``StudentConfig.perception``): the action head conditioned on the depth features
+    and on the state MLP's reading of the joint state, the hand's pose by forward kinematics and the object's
+    facts (``trainer.sim.labels.READOUT``: offset from the hand, grasp direction, size) with the grasp
+    direction turned into the fingers' frame. The facts come from ``Perception``'s readout of depth, or, for
+    the "privileged" oracle, from the simulator. Same interface as ``StudentPolicy`` for export."""
+
+    def __init__(self, config: StudentConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.state_norm = RangeNormaliser(config.state_dim)
+        self.action_norm = RangeNormaliser(config.action_dim)
+        self.hand_norm = RangeNormaliser(HAND_FEATURES)
+        self.label_norm = RangeNormaliser(READOUT)
+        """Facts in metres -> standardised units: centre = mean, half_range = std over the training steps."""
+        depth = config.perception == "depth"
+        self.perception = (Perception(config.depth_channels, config.width, config.keypoints,
+                                      config.fine_keypoints) if depth else None)
+        features = self.perception.out_features if depth else 0
+        inputs = config.state_dim + HAND_FEATURES + READOUT + 2
+        self.state_mlp = nn.Sequential(nn.Linear(inputs, config.state_features), nn.ReLU(),
+                                       nn.Linear(config.state_features, config.state_features))
+        self.head = ConditionalUnet1d(config.action_dim, features + config.state_features, config.head_dims,
+                                      config.step_features)
+
+    def perceive(self, depth: torch.Tensor, state: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """(features, standardised facts, fine keypoints) of a depth stack: ``Perception``'s outputs."""
+        return self.perception(depth, self.hand_norm.normalise(hand_pose(state)))
+
+    def encode(self, observation: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        """Depth stack [B, To, H, W] (or, privileged, the true label rows [B, >= READOUT]) + raw state [B, S]
+        -> observation feature [B, F]."""
+        if self.perception is None:
+            features = observation.new_zeros(observation.shape[0], 0)
+            return self.fuse(features, self.label_norm.normalise(observation[:, :READOUT]), state)
+        features, facts, _ = self.perceive(observation, state)
+        return self.fuse(features, facts, state)
+
+    def fuse(self, features: torch.Tensor, facts: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        hand = hand_pose(state)
+        turn = into_fingers(self.label_norm.unnormalise(facts)[:, GRASP_YAW], hand)
+        x = torch.cat([self.state_norm.normalise(state), self.hand_norm.normalise(hand), facts, turn], dim=-1)
+        return torch.cat([features, self.state_mlp(x)], dim=-1)
+
+    def fit_normalisers(self, state: np.ndarray, action: np.ndarray, labels: np.ndarray) -> None:
+        """Min-max of states, actions and hand poses; mean and std of the facts (``labels`` [N, >= 8])."""
+        self.state_norm.fit(state.min(0), state.max(0))
+        flat = action.reshape(-1, action.shape[-1])  # steps' actions or chunks
+        self.action_norm.fit(flat.min(0), flat.max(0))
+        with torch.no_grad():
+            hands = hand_pose(torch.from_numpy(np.asarray(state, np.float32))).numpy()
+        self.hand_norm.fit(hands.min(0), hands.max(0))
+        mean, std = column_scale(labels[:, :READOUT])
+        self.label_norm.fit(mean - std, mean + std)
+
+    def forward(self, noisy_actions: torch.Tensor, steps: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
+        return self.head(noisy_actions, steps, obs)
+
+
+def build_policy(config: StudentConfig) -> nn.Module:
+    """The network a configuration describes: the recipe's ``PerceptionStudent`` or the earlier
+    ``StudentPolicy``."""
+    return PerceptionStudent(config) if config.perception else StudentPolicy(config)

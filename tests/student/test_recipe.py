@@ -1,0 +1,172 @@
+"""The student recipe: labels match the simulator at their frame, a DAgger round records the learner's own
+states with the expert's labels, training stacks equal the runtime's, the perception student exports with
+parity, and the recipe resumes without redoing finished stages."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from runtime.preprocess import FrameStack, normalise
+from trainer.dataset import DemoStore
+from trainer.sim.env import OBJECT_FROM_HAND, EnvConfig, GraspEnv
+from trainer.sim.labels import GRASP_YAW, HAND_PX, OBJECT_PX, OFFSET, SIZE, frame_labels
+from trainer.student.dagger import RoundSpec, chunks_ahead, collect_round
+from trainer.teacher.scripted import ReactiveExpert
+
+TINY = ["--width", "8", "--head-dims", "16", "32", "--state-features", "16", "--step-features", "16"]
+
+
+@pytest.fixture(scope="module")
+def env():
+    e = GraspEnv(EnvConfig(objects=("banana", "apple"), max_steps=40))
+    yield e
+    e.close()
+
+
+def _pixel(frame: np.ndarray, xy: np.ndarray) -> tuple[int, int]:
+    h, w = frame.shape
+    return int(round((xy[1] + 1) * (h - 1) / 2)), int(round((xy[0] + 1) * (w - 1) / 2))
+
+
+@pytest.mark.parametrize("kind", ["banana", "apple"])
+def test_labels_match_the_simulator_at_their_frame(env, kind):
+    obs, info = env.reset(seed=7, options={"kind": kind})
+    expert = ReactiveExpert()
+    expert.reset(info)
+    for _ in range(12):  # the hand on its way down, in view
+        obs, _, _, _, info = env.step(expert.act(obs))
+    row = frame_labels(env)
+    np.testing.assert_allclose(row[OFFSET], obs[OBJECT_FROM_HAND], atol=1e-6)
+    extent = env.world.object_extent()
+    np.testing.assert_allclose(row[SIZE], [min(extent[:2]), max(extent[:2]), extent[2]], atol=1e-6)
+    yaw_norm = np.linalg.norm(row[GRASP_YAW])
+    assert yaw_norm == pytest.approx(1.0 if kind == "banana" else 0.0, abs=1e-5)
+    # the labelled pixels show the object and the hand: nearer the camera than the table around them
+    depth = env.frame()
+    table = np.median(depth[depth > 0])
+    for pixel in (row[OBJECT_PX], row[HAND_PX]):
+        assert np.all(np.abs(pixel) <= 1)
+        assert 0 < depth[_pixel(depth, pixel)] < table - 20
+
+
+def test_lookahead_is_the_experts_own_continuation_and_leaves_the_env_as_it_was(env):
+    obs, info = env.reset(seed=3, options={"kind": "banana"})
+    expert = ReactiveExpert()
+    expert.reset(info)
+    labels, taken = [], []
+    for _ in range(20):
+        before = env.observation()
+        labels.append(env.lookahead(expert.act, 8))
+        np.testing.assert_allclose(env.observation(), before, atol=1e-4)
+        taken.append(expert.act(env.observation()))
+        env.step(taken[-1])
+    taken = np.array(taken)
+    for t in range(12):
+        np.testing.assert_allclose(labels[t], taken[t:t + 8], atol=2e-3)
+    np.testing.assert_array_equal(chunks_ahead(taken, 8)[-1], np.repeat(taken[-1:], 8, axis=0))
+
+
+def test_a_dagger_round_records_the_learners_states_with_the_experts_labels(tmp_path):
+    from trainer.student.cli import main as student_main
+
+    ckpt = tmp_path / "oracle.pt"
+    assert student_main(["init", "--out", str(ckpt), "--perception", "privileged", *TINY]) == 0
+    config = EnvConfig(objects=("cube",), max_steps=25, render_depth=False)
+    spec = RoundSpec(learner=f"oracle:{ckpt}", beta=0.0, horizon=6, stall_steps=100)
+    tally = collect_round(tmp_path / "round1.zarr", config, spec, episodes=1, seed=5)
+    store = DemoStore.open(tmp_path / "round1.zarr")
+    assert tally["attempted"] == 1 and store.n_steps == 25
+    ep = store.episode(0)
+    # replay the learner's executed actions: the recorded states are the ones it reached, and each chunk is
+    # what the expert does from there (not what the learner did)
+    env, expert = GraspEnv(config), ReactiveExpert()
+    try:
+        _, info = env.reset(seed=5, options={"kind": "cube"})
+        expert.reset(info)
+        for t in range(store.n_steps):
+            np.testing.assert_allclose(ep["state"][t], info["state"], atol=1e-5)
+            np.testing.assert_allclose(ep["chunk"][t][0], expert.act(env.observation()), atol=1e-4)
+            np.testing.assert_allclose(ep["labels"][t], frame_labels(env), atol=1e-5)
+            _, _, _, _, info = env.step(ep["action"][t])
+    finally:
+        env.close()
+    assert not np.allclose(ep["action"][:, :7], ep["chunk"][:, 0, :7], atol=0.05)  # the learner drove
+
+
+def test_training_stacks_are_the_runtimes(tmp_path):
+    from trainer.student.steps import LabelledSteps
+
+    config = EnvConfig(objects=("cube",), max_steps=9)
+    collect_round(tmp_path / "round0.zarr", config, RoundSpec(horizon=4), episodes=2, seed=11)
+    store = DemoStore.open(tmp_path / "round0.zarr")
+    steps = LabelledSteps([tmp_path / "round0.zarr"], obs_horizon=3, action_horizon=4, depth=True)
+    assert len(steps) == store.n_steps
+    for e in range(store.n_episodes):
+        ep, frames = store.episode(e), FrameStack(3)
+        first = store.episode_slice(e).start
+        for t, depth in enumerate(ep["depth"]):
+            expected = frames.push(normalise(depth, 0.001, store.depth_spec))
+            batch = steps.batch(torch.tensor([first + t]))
+            np.testing.assert_array_equal(batch.depth[0].numpy(), expected)
+            np.testing.assert_array_equal(batch.chunk[0].numpy(), ep["chunk"][t])
+
+
+def test_perception_student_exports_with_parity(tmp_path):
+    from export.__main__ import main as export_main
+    from export.check import run_check
+    from trainer.student.cli import main as student_main
+
+    ckpt, out = tmp_path / "p.pt", tmp_path / "p.onnx"
+    assert student_main(["init", "--out", str(ckpt), "--perception", "depth", "--prediction", "v_prediction",
+                         *TINY]) == 0
+    assert export_main([str(ckpt), "--ddim-steps", "4", "--out", str(out)]) == 0
+    assert run_check(out, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
+
+
+def test_the_recipe_resumes_without_redoing_finished_stages(tmp_path, capsys):
+    from trainer.student.recipe import main as recipe_main
+
+    base = ["--out", str(tmp_path / "r"), "--perception", "privileged", "--demos", "2", "--rounds", "1",
+            "--round-episodes", "1", "--fit-steps", "3", "--round-steps", "2", "--workers", "1",
+            "--curve-episodes", "1", "--eval-episodes", "1", "--state-features", "16"]
+    args = [*base, "--head-dims", "16", "32"]
+    assert recipe_main(args) == 0
+    log = (tmp_path / "r" / "log.jsonl").read_text().splitlines()
+    stages = [json.loads(line)["stage"] for line in log]
+    assert stages == ["round 0 data", "round 0 fit", "round 0 held-out", "round 1 data", "round 1 fit",
+                      "round 1 held-out"]
+    files = {p: p.stat().st_mtime_ns for p in (tmp_path / "r").rglob("*") if p.is_file()}
+    assert recipe_main(args) == 0  # everything done: nothing is redone
+    assert (tmp_path / "r" / "log.jsonl").read_text().splitlines() == log
+    assert {p: p.stat().st_mtime_ns for p in files if p.name != "recipe.json"} == {
+        p: t for p, t in files.items() if p.name != "recipe.json"}
+    assert recipe_main([*base, "--head-dims", "16", "16"]) == 2
+    assert "other settings" in capsys.readouterr().err
+    summary = json.loads((tmp_path / "r" / "eval_seen.json").read_text())
+    assert summary["episodes"] == 1 and summary["policy"].startswith("oracle:")
+
+
+def test_recipe_data_are_refused_by_another_chunk_length(tmp_path):
+    from trainer.dataset import DatasetError
+
+    config = EnvConfig(objects=("cube",), max_steps=3, render_depth=False)
+    collect_round(tmp_path / "r.zarr", config, RoundSpec(horizon=4), episodes=1, seed=1)
+    with pytest.raises(DatasetError, match="expert chunks of 4 steps, not 6"):
+        collect_round(tmp_path / "r.zarr", config, RoundSpec(horizon=6), episodes=2, seed=1)
+
+
+def test_an_oracle_bias_moves_the_facts_it_reads(tmp_path):
+    from trainer.student.cli import main as student_main
+    from trainer.student.oracle_policy import load
+
+    ckpt = tmp_path / "oracle.pt"
+    assert student_main(["init", "--out", str(ckpt), "--perception", "privileged", *TINY]) == 0
+    policy = load(f"{ckpt}@0.5")
+    policy.reset({"object_half_extent": [0.02, 0.04, 0.02], "episode": {"seed": 3}})
+    assert np.linalg.norm(policy._bias) == pytest.approx(0.005) and policy._bias[2] == 0
+    with pytest.raises(ValueError, match="centimetres"):
+        load(f"{ckpt}@half")

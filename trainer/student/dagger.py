@@ -1,0 +1,117 @@
+"""DAgger rounds for the student: a learner drives, the reactive expert labels every state it reaches.
+
+Each step records the frame (depth, when the learner reads it), the joint state, the frame's perception labels
+(``trainer.sim.labels``) and the expert's action chunk from that state (``GraspEnv.lookahead``: the expert run
+ahead in the physics, which is then rolled back), then executes the learner's action, or, with probability
+``beta``, the expert's, so that early learners still reach the grasp and lift states and get them labelled.
+Round 0 has no learner: the expert drives, and its chunk labels are its own next actions, which equal its
+lookahead (it is memoryless and the physics deterministic). A learner's episode ends as the env's do or once
+the hand has stalled. Every episode is kept, failures included: their labels say how to recover.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from trainer.dataset import DemoStore, EpisodeRecord
+from trainer.policies import Observation, make_policy
+from trainer.sim.env import HAND_POSITION, EnvConfig, GraspEnv
+from trainer.sim.labels import frame_labels
+from trainer.sim.rollout import Job, in_workers, start_episode
+from trainer.teacher.scripted import ReactiveExpert
+
+
+@dataclass(frozen=True)
+class RoundSpec:
+    learner: str = ""
+    """Policy spec of the learner (``student:ONNX``, ``oracle:CKPT``); "" = the expert drives (round 0)."""
+    beta: float = 0.0
+    """Probability that a learner step executes the expert's action instead."""
+    horizon: int = 16
+    """Length of the expert's action chunk recorded as each step's label (the student's action horizon)."""
+    stall_steps: int = 10
+    """A learner episode ends once the hand moved less than ``stall_m`` over this many steps."""
+    stall_m: float = 0.002
+
+
+def chunks_ahead(actions: np.ndarray, horizon: int) -> np.ndarray:
+    """[T, A] -> [T, horizon, A]: each step's next ``horizon`` actions, the last one repeated past the end."""
+    index = np.minimum(np.arange(len(actions))[:, None] + np.arange(horizon), len(actions) - 1)
+    return actions[index]
+
+
+def labelled_episode(env: GraspEnv, expert: ReactiveExpert, learner, job: Job,
+                     spec: RoundSpec) -> tuple[EpisodeRecord, bool]:
+    """One episode of ``job`` driven by ``learner`` (None: the expert), every step labelled; returns its
+    record and whether it succeeded."""
+    info = start_episode(env, learner or expert, job)
+    expert.reset(info)
+    rng = np.random.default_rng([job.seed, 0xDA66])
+    steps: dict[str, list] = {"depth": [], "state": [], "action": [], "labels": [], "chunk": []}
+    hands = []
+    while True:
+        obs = env.observation()
+        steps["labels"].append(frame_labels(env))
+        if learner is None:
+            action = np.asarray(expert.act(obs), np.float32)
+        else:
+            chunk = env.lookahead(expert.act, spec.horizon)
+            steps["chunk"].append(chunk)
+            action = np.asarray(learner.act(Observation(obs, info.get("depth"), info["state"])), np.float32)
+            if rng.random() < spec.beta:
+                action = chunk[0]
+        for key, value in (("depth", info.get("depth")), ("state", info["state"]), ("action", action)):
+            steps[key].append(value)
+        hands.append(obs[HAND_POSITION])
+        _, _, terminated, truncated, info = env.step(action)
+        stalled = (learner is not None and len(hands) >= spec.stall_steps
+                   and np.linalg.norm(hands[-1] - hands[-spec.stall_steps]) < spec.stall_m)
+        if terminated or truncated or stalled:
+            break
+    actions = np.stack(steps["action"])
+    chunks = np.stack(steps["chunk"]) if steps["chunk"] else chunks_ahead(actions, spec.horizon)
+    depth = (np.stack(steps["depth"]) if steps["depth"][0] is not None
+             else np.zeros((len(actions), env.spec.out_height, env.spec.out_width), np.uint16))
+    world = env.world
+    record = EpisodeRecord(depth, np.stack(steps["state"]), actions, job.kind, job.seed,
+                           world.episode.crop_window, world.intr.K, world.camera_extrinsics(),
+                           world.episode.to_dict(), labels=np.stack(steps["labels"]), chunk=chunks)
+    return record, bool(info["success"])
+
+
+_WORKER: dict = {}
+
+
+def _init(config: EnvConfig, spec: RoundSpec) -> None:
+    _WORKER.update(env=GraspEnv(config), expert=ReactiveExpert(), spec=spec,
+                   learner=make_policy(spec.learner) if spec.learner else None)
+
+
+def _work(job: Job) -> tuple[EpisodeRecord, bool]:
+    w = _WORKER
+    return labelled_episode(w["env"], w["expert"], w["learner"], job, w["spec"])
+
+
+def collect_round(path: Path, config: EnvConfig, spec: RoundSpec, *, episodes: int, seed: int,
+                  workers: int = 1) -> dict:
+    """Episodes ``seed``.. (kinds in turn) into the store at ``path``, resumed where it stopped; returns the
+    store's tally."""
+    store = DemoStore.create(path, spec=config.depth, action_scale=config.action_scale,
+                             control_rate_hz=config.control_rate_hz, chunk_horizon=spec.horizon,
+                             attrs={"teacher": "reactive", "learner": spec.learner, "beta": spec.beta,
+                                    "seed": seed, "objects": list(config.objects)})
+    kinds = config.objects
+    jobs = [Job(seed + i, kinds[i % len(kinds)]) for i in range(int(store.attrs["attempted"]), episodes)]
+    bar = tqdm(total=episodes, initial=episodes - len(jobs), desc=f"round {path.stem}", unit="ep")
+    for record, success in in_workers(_init, (config, spec), _work, jobs, workers, _WORKER):
+        store.append(record)
+        store.count(success=success)
+        bar.update(1)
+        bar.set_postfix(success=f"{store.attrs['succeeded'] / store.attrs['attempted']:.0%}")
+    bar.close()
+    attrs = store.attrs
+    return {k: attrs[k] for k in ("attempted", "succeeded")} | {"steps": store.n_steps}

@@ -1,0 +1,152 @@
+"""One fit of a recipe student (``StudentConfig.perception``) on labelled steps, resumable, on the GPU when
+there is one.
+
+Loss: the action head's denoising loss on the expert's chunk labels (paper eq. 10), plus for a depth student
+the perception losses: the readout against the frame's facts (standardised units) and the two supervised
+keypoints against the object's and the hand's pixels where they are in view. The head reads the readout
+detached: it learns to act on perception as it is, while only the labels teach perception.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from trainer.diffusion import training_target
+from trainer.sim.labels import HAND_PX, OBJECT_PX, READOUT
+from trainer.student import checkpoint
+from trainer.student.checkpoint import Checkpoint, TrainingInfo
+from trainer.student.config import StudentConfig
+from trainer.student.ddim import training_scheduler
+from trainer.student.model import PerceptionStudent
+from trainer.student.steps import LabelledSteps, StepBatch
+from trainer.student.train import CKPT_NAME, ema_update, lr_factor, plot_losses
+
+
+@dataclass(frozen=True)
+class DistillConfig:
+    steps: int = 4000
+    """Optimiser steps of this fit (a resumed fit continues up to this)."""
+    batch: int = 128
+    lr: float = 3e-4
+    """AdamW learning rate, linear warm-up then cosine decay to 0 (the fit ends settled, not noisy)."""
+    warmup: int = 200
+    weight_decay: float = 1e-6
+    facts_loss: float = 1.0
+    """Weight of the readout's loss (standardised facts: offset, grasp direction, size)."""
+    keypoint_loss: float = 10.0
+    """Weight of the supervised keypoints' squared error in [-1, 1] image units (a pixel is ~0.02)."""
+    ema_max: float = 0.999
+    ckpt_every: int = 500
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch", "ckpt_every"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+
+def device() -> torch.device:
+    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+
+
+def losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Generator,
+           cfg: DistillConfig) -> tuple[torch.Tensor, dict[str, float]]:
+    """The total loss of ``batch`` and its terms."""
+    clean = net.action_norm.normalise(batch.chunk)
+    noise = torch.randn(clean.shape, generator=gen, device=gen.device)
+    k = torch.randint(0, scheduler.config.num_train_timesteps, (clean.shape[0],), generator=gen,
+                      device=gen.device)
+    noisy = scheduler.add_noise(clean, noise, k)
+    terms = {}
+    if net.perception is None:
+        obs = net.encode(batch.labels, batch.state)
+    else:
+        features, facts, keypoints = net.perceive(batch.depth, batch.state)
+        obs = net.fuse(features, facts.detach(), batch.state)
+        truth = net.label_norm.normalise(batch.labels[:, :READOUT])
+        terms["facts"] = nn.functional.mse_loss(facts, truth)
+        pixels = torch.stack([batch.labels[:, OBJECT_PX], batch.labels[:, HAND_PX]], dim=1)  # [B, 2, 2]
+        seen = (pixels.abs() <= 1).all(dim=-1)
+        error = ((keypoints[:, :2] - pixels) ** 2).sum(dim=-1)
+        terms["keypoints"] = (error * seen).sum() / seen.sum().clamp_min(1)
+    terms["denoise"] = nn.functional.mse_loss(net(noisy, k, obs), training_target(scheduler, clean, noise, k))
+    total = (terms["denoise"] + cfg.facts_loss * terms.get("facts", 0.0)
+             + cfg.keypoint_loss * terms.get("keypoints", 0.0))
+    return total, {name: float(value.detach()) for name, value in terms.items()}
+
+
+def start(out: Path, model_cfg: StudentConfig, info: TrainingInfo, steps: LabelledSteps,
+          init: Path | None) -> Checkpoint:
+    """The fit's checkpoint: resumed from ``out``, else ``init``'s EMA weights (a DAgger round refits from
+    the last round's student, normalisers kept), else fresh with normalisers fitted to ``steps``."""
+    path = out / CKPT_NAME
+    if path.is_file():
+        ckpt = checkpoint.load(path)
+        if ckpt.config != model_cfg:
+            raise ValueError(f"{path} is a {ckpt.config}, not the requested {model_cfg}; use another folder")
+        return ckpt
+    if init is not None:
+        source = checkpoint.load(init)
+        return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in source.ema.items()},
+                          model={k: v.clone() for k, v in source.ema.items()})
+    ckpt = checkpoint.fresh(model_cfg, info)
+    net = PerceptionStudent(model_cfg)
+    net.load_state_dict(ckpt.model)
+    net.fit_normalisers(steps.state_np, steps.chunk_np, steps.labels_np)
+    ckpt.model = net.state_dict()
+    ckpt.ema = {k: v.clone() for k, v in ckpt.model.items()}
+    return ckpt
+
+
+def distill(steps: LabelledSteps, out: Path, model_cfg: StudentConfig, cfg: DistillConfig,
+            info: TrainingInfo, init: Path | None = None) -> dict:
+    """Fit to ``cfg.steps`` into ``out``/ckpt.pt (with loss.png); returns a summary."""
+    out.mkdir(parents=True, exist_ok=True)
+    ckpt = start(out, model_cfg, info, steps, init)
+    dev = steps.device
+    net = PerceptionStudent(model_cfg).to(dev)
+    net.load_state_dict(ckpt.model)
+    ema = {k: v.to(dev) for k, v in ckpt.ema.items()}
+    optim = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    if ckpt.optimizer is not None:
+        optim.load_state_dict(ckpt.optimizer)
+    scheduler = training_scheduler(model_cfg.train_timesteps, model_cfg.prediction)
+    scheduler.alphas_cumprod = scheduler.alphas_cumprod.to(dev)
+    seed = cfg.seed * 1_000_003 + ckpt.step
+    gen = torch.Generator(device=dev).manual_seed(seed)
+    sampler = torch.Generator().manual_seed(seed)
+    began, first, terms = time.perf_counter(), ckpt.step, {}
+    bar = tqdm(range(ckpt.step, cfg.steps), initial=ckpt.step, total=cfg.steps, desc=f"fit {out.name}")
+    for step in bar:
+        for group in optim.param_groups:
+            group["lr"] = cfg.lr * lr_factor(step, cfg)
+        batch = steps.batch(torch.randint(0, len(steps), (cfg.batch,), generator=sampler))
+        loss, terms = losses(net, scheduler, batch, gen, cfg)
+        optim.zero_grad(set_to_none=True)
+        loss.backward()
+        optim.step()
+        ema_update(ema, net, step, cfg.ema_max)
+        ckpt.losses.append(terms["denoise"])
+        ckpt.step = step + 1
+        bar.set_postfix({k: f"{v:.4f}" for k, v in terms.items()})
+        if ckpt.step % cfg.ckpt_every == 0 or ckpt.step == cfg.steps:
+            save(out, ckpt, net, ema, optim)
+    return {"steps": ckpt.step, "steps_this_run": ckpt.step - first, "device": str(dev),
+            "seconds": round(time.perf_counter() - began, 1), "last_terms": terms,
+            "denoise_last_100": float(np.mean(ckpt.losses[-100:])) if ckpt.losses else None}
+
+
+def save(out: Path, ckpt: Checkpoint, net: nn.Module, ema: dict[str, torch.Tensor],
+         optim: torch.optim.Optimizer) -> None:
+    ckpt.model = {k: v.detach().cpu() for k, v in net.state_dict().items()}
+    ckpt.ema = {k: v.detach().cpu() for k, v in ema.items()}
+    ckpt.optimizer = optim.state_dict()
+    checkpoint.save(out / CKPT_NAME, ckpt)
+    plot_losses(ckpt.losses, out / "loss.png")

@@ -1,0 +1,286 @@
+"""``python -m trainer student recipe``: the student that grasps, from nothing, in resumable stages.
+
+    demos     the reactive expert's episodes, every frame labelled (round 0: ``trainer.student.dagger``)
+    fit       the student on every labelled step so far (round 0 from scratch, then from the last round's)
+    export    the student -> student.onnx (a depth student; the next round's learner, the shipped file)
+    dagger    the learner's own episodes labelled by the expert (rounds 1..R, beta halved each round)
+    curve     held-out success after each fit (seeds 20000..): learning_curve.csv and .png
+    evaluate  the last round's student on seen and unseen kinds (seeds 10000..): eval_seen.json and
+              eval_unseen.json
+
+Artifacts live in ``--out`` (default: ``$DIFFUDEPGRASP_HOME/recipe/NAME``, else
+``~/.cache/diffudepgrasp/recipe/NAME``), outside any checkout, so a fresh clone resumes where the last one
+stopped: each stage is skipped once its output is complete, and a stage cut off half way resumes (stores from
+their last episode, fits from their last checkpoint). ``recipe.json`` there records the settings, which a
+resume must repeat.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import os
+import subprocess
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import torch
+
+from hil_sim.objects import GROUPS
+from runtime.preprocess import DepthSpec
+from trainer.dataset import DatasetError, DemoStore
+from trainer.evaluate import evaluate
+from trainer.sim.env import EnvConfig
+from trainer.student import checkpoint
+from trainer.student.argspec import add_dataclass_args, from_args
+from trainer.student.checkpoint import TrainingInfo
+from trainer.student.config import StudentConfig
+from trainer.student.dagger import RoundSpec, collect_round
+from trainer.student.distill import DistillConfig, device, distill
+from trainer.student.steps import LabelledSteps
+from trainer.student.train import CKPT_NAME
+
+ROUND_SEED = 1_000_000
+"""Round r's episodes use seeds ROUND_SEED + r * 100_000..: apart from the curve's and the evaluation's."""
+CURVE_SEED = 20_000
+EVAL_SEED = 10_000
+
+
+@dataclass(frozen=True)
+class RecipeConfig:
+    perception: str = "depth"
+    """depth (the product: a depth student, exported to ONNX) | privileged (the head on true facts: M0)."""
+    demos: int = 300
+    """The expert's episodes (round 0)."""
+    rounds: int = 4
+    """DAgger rounds after round 0."""
+    round_episodes: int = 100
+    """Learner episodes per round."""
+    beta: float = 0.5
+    """Share of round 1's steps the expert executes; halved each round."""
+    fit_steps: int = 6000
+    """Optimiser steps of round 0's fit, from scratch."""
+    round_steps: int = 3000
+    """Optimiser steps of each later round's fit, from the last round's weights, on all data so far."""
+    batch: int = 64
+    lr: float = 3e-4
+    width: int = 16
+    """ResNet-18 base width of a depth student."""
+    head_dims: tuple[int, ...] = (64, 128, 256)
+    state_features: int = 128
+    exec_horizon: int = 4
+    prediction: str = "v_prediction"
+    resolution: str = "128x96"
+    """The policy's depth, WIDTHxHEIGHT of the same crop."""
+    ddim_steps: int = 4
+    workers: int = 2
+    """Rollout processes (collection and evaluation)."""
+    threads: int = 0
+    """torch threads of the fits on the CPU (0 = torch's default; 1 beside busy rollout workers)."""
+    curve_episodes: int = 30
+    eval_episodes: int = 180
+    seed: int = 0
+
+    def student(self) -> StudentConfig:
+        return StudentConfig(perception=self.perception, width=self.width, head_dims=self.head_dims,
+                             state_features=self.state_features, exec_horizon=self.exec_horizon,
+                             prediction=self.prediction)
+
+    def spec(self) -> DepthSpec:
+        width, _, height = self.resolution.partition("x")
+        return DepthSpec(out_width=int(width), out_height=int(height))
+
+    def distill(self, steps: int) -> DistillConfig:
+        return DistillConfig(steps=steps, batch=self.batch, lr=self.lr, seed=self.seed)
+
+
+def default_home() -> Path:
+    """Where long-lived artifacts live: ``$DIFFUDEPGRASP_HOME``, else the user's cache directory."""
+    home = os.environ.get("DIFFUDEPGRASP_HOME")
+    return Path(home) if home else Path.home() / ".cache" / "diffudepgrasp"
+
+
+class Recipe:
+    """The stages over one folder; ``run()`` does what is not done yet."""
+
+    def __init__(self, out: Path, cfg: RecipeConfig) -> None:
+        self.out, self.cfg = out, cfg
+        self.env = EnvConfig(objects=GROUPS["seen"], render_depth=cfg.perception == "depth", depth=cfg.spec())
+        self.dev = device()
+
+    def run(self) -> dict:
+        self._settings()
+        if self.cfg.threads:
+            torch.set_num_threads(self.cfg.threads)
+        for r in range(self.cfg.rounds + 1):
+            self.collect(r)
+            self.fit(r)
+            self.curve(r)
+        return self.evaluate()
+
+    # --- stages -------------------------------------------------------------------------------------
+    def collect(self, r: int) -> None:
+        c = self.cfg
+        learner = "" if r == 0 else self.learner(r - 1)
+        spec = RoundSpec(learner=learner, beta=c.beta * 0.5 ** (r - 1) if r else 0.0,
+                         horizon=c.student().action_horizon)
+        episodes = c.demos if r == 0 else c.round_episodes
+        if self._episodes(self.store(r)) < episodes:
+            tally = collect_round(self.store(r), self.env, spec, episodes=episodes,
+                                  seed=ROUND_SEED + r * 100_000, workers=c.workers)
+            self._log(f"round {r} data", tally)
+
+    def fit(self, r: int) -> None:
+        c = self.cfg
+        steps = c.fit_steps if r == 0 else c.round_steps
+        ckpt_path = self.run_dir(r) / CKPT_NAME
+        if not (ckpt_path.is_file() and checkpoint.load(ckpt_path).step >= steps):
+            data = LabelledSteps([self.store(i) for i in range(r + 1)], c.student().obs_horizon,
+                                 c.student().action_horizon, depth=c.perception == "depth", device=self.dev)
+            info = TrainingInfo(depth_spec=data.spec, action_scale=self.env.action_scale,
+                                control_rate_hz=self.env.control_rate_hz, trained=True,
+                                data={"recipe": str(self.out), "round": r, "steps": len(data),
+                                      "command": " ".join(sys.argv)})
+            init = None if r == 0 else self.run_dir(r - 1) / CKPT_NAME
+            self._log(f"round {r} fit", distill(data, self.run_dir(r), c.student(), c.distill(steps), info,
+                                                init))
+        if c.perception == "depth" and not self.onnx(r).is_file():
+            export(ckpt_path, self.onnx(r), c.ddim_steps)
+
+    def curve(self, r: int) -> None:
+        path = self.out / "learning_curve.csv"
+        rows = read_curve(path)
+        if any(int(row["round"]) == r for row in rows):
+            return
+        c = self.cfg
+        result = evaluate(self.learner(r), GROUPS["seen"], c.curve_episodes, seed=CURVE_SEED,
+                          workers=c.workers)
+        store = DemoStore.open(self.store(r))
+        rows.append({"round": r, "steps": sum(DemoStore.open(self.store(i)).n_steps for i in range(r + 1)),
+                     "round_success": round(store.attrs["succeeded"] / max(1, store.attrs["attempted"]), 4),
+                     "held_out_success": result["success_rate"], "ci_low": result["ci95"][0],
+                     "ci_high": result["ci95"][1], "episodes": c.curve_episodes})
+        write_curve(path, rows)
+        self._log(f"round {r} held-out", rows[-1])
+
+    def evaluate(self) -> dict:
+        c, results = self.cfg, {}
+        for objects in ("seen", "unseen"):
+            path = self.out / f"eval_{objects}.json"
+            if not path.is_file():
+                result = evaluate(self.learner(c.rounds), GROUPS[objects], c.eval_episodes, seed=EVAL_SEED,
+                                  workers=c.workers)
+                path.write_text(json.dumps(result, indent=2))
+            results[objects] = json.loads(path.read_text())
+        return {k: {"success_rate": v["success_rate"], "ci95": v["ci95"]} for k, v in results.items()}
+
+    # --- paths --------------------------------------------------------------------------------------
+    def store(self, r: int) -> Path:
+        return self.out / "data" / f"round{r}.zarr"
+
+    def run_dir(self, r: int) -> Path:
+        return self.out / "fit" / f"round{r}"
+
+    def onnx(self, r: int) -> Path:
+        return self.run_dir(r) / "student.onnx"
+
+    def learner(self, r: int) -> str:
+        """The policy spec of round ``r``'s student."""
+        if self.cfg.perception == "depth":
+            return f"student:{self.onnx(r)}"
+        return f"oracle:{self.run_dir(r) / CKPT_NAME}"
+
+    # --- bookkeeping --------------------------------------------------------------------------------
+    def _settings(self) -> None:
+        path = self.out / "recipe.json"
+        self.out.mkdir(parents=True, exist_ok=True)
+        mine = json.loads(json.dumps(asdict(self.cfg)))
+        if path.is_file():
+            kept = json.loads(path.read_text())
+            changed = {k: (kept.get(k), v) for k, v in mine.items()
+                       if k not in RESUMABLE and kept.get(k) != v}
+            if changed:
+                raise ValueError(f"{self.out} was made with other settings {changed}: repeat them or use "
+                                 "another --out")
+        path.write_text(json.dumps(mine, indent=1))
+
+    @staticmethod
+    def _episodes(path: Path) -> int:
+        try:
+            return int(DemoStore.open(path).attrs["attempted"])
+        except DatasetError:
+            return 0
+
+    def _log(self, what: str, summary: dict) -> None:
+        line = json.dumps({"stage": what, **summary})
+        print(line, flush=True)
+        with open(self.out / "log.jsonl", "a") as f:
+            f.write(line + "\n")
+
+
+RESUMABLE = {"workers", "threads", "curve_episodes", "eval_episodes", "rounds"}
+"""Settings a resume may change: how the work is spread, how much is measured, how many more rounds."""
+
+
+def export(ckpt: Path, out: Path, ddim_steps: int) -> None:
+    """``python -m export``, in its own process (trainer does not import export: export imports trainer)."""
+    subprocess.run([sys.executable, "-m", "export", str(ckpt), "--ddim-steps", str(ddim_steps), "--out",
+                    str(out)], check=True, stdout=subprocess.DEVNULL)
+
+
+def read_curve(path: Path) -> list[dict]:
+    if not path.is_file():
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def write_curve(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    plot_curve(rows, path.with_suffix(".png"))
+
+
+def plot_curve(rows: list[dict], path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    rounds = [int(r["round"]) for r in rows]
+    rate = [100 * float(r["held_out_success"]) for r in rows]
+    low = [100 * float(r["ci_low"]) for r in rows]
+    high = [100 * float(r["ci_high"]) for r in rows]
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.fill_between(rounds, low, high, alpha=0.25, label="95 % Wilson interval")
+    ax.plot(rounds, rate, "o-", label="held-out success (learner alone)")
+    ax.plot(rounds, [100 * float(r["round_success"]) for r in rows], "s--", alpha=0.6,
+            label="the round's own episodes (with beta)")
+    ax.set(xlabel="DAgger round (0 = expert demos only)", ylabel="success, %", ylim=(0, 100),
+           title=f"student learning curve ({rows[-1]['episodes']} held-out episodes per round)")
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m trainer student recipe", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--out", type=Path, help="the recipe's folder (default: the cache directory, see above)")
+    p.add_argument("--name", default="student", help="folder name under the cache directory's recipe/")
+    add_dataclass_args(p, RecipeConfig)
+    args = p.parse_args(argv)
+    cfg = from_args(RecipeConfig, args)
+    try:
+        cfg.student()
+        out = args.out or default_home() / "recipe" / args.name
+        summary = Recipe(out, cfg).run()
+    except (ValueError, DatasetError, OSError, subprocess.CalledProcessError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps({"out": str(out), **summary}))
+    return 0
+

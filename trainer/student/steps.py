@@ -1,0 +1,87 @@
+"""Every labelled step of a recipe's stores (the expert's demos and the DAgger rounds) in memory, as tensors
+on the training device, so a batch is a few index gathers rather than a Python loop per sample.
+
+Depth is normalised once per frame by ``runtime.preprocess.normalise``, the one implementation the runtime
+runs, and stacked by the ``FrameStack`` rule (the episode's first frame fills the history): a sample's stack
+is what the runtime feeds the policy at that step (tests/student/test_steps.py).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from runtime.preprocess import DepthSpec, normalise
+from trainer.dataset import DemoStore, sizes
+
+_NORMALISE_BLOCK = 4096
+"""Frames normalised at a time while loading (bounds the float64 temporaries)."""
+
+
+class StepsError(ValueError):
+    """Stores the recipe cannot train on (no labels, another resolution)."""
+
+
+@dataclass(frozen=True)
+class StepBatch:
+    depth: torch.Tensor | None
+    """float32 [B, To, H, W] preprocessed stacks, oldest first; None when the steps carry no depth."""
+    state: torch.Tensor
+    labels: torch.Tensor
+    """float32 [B, 12] (``trainer.sim.labels.LABELS``)."""
+    chunk: torch.Tensor
+    """float32 [B, Ha, 8] the expert's action chunk from the step's state, env units."""
+
+
+class LabelledSteps:
+    def __init__(self, paths: list[Path], obs_horizon: int, action_horizon: int, *, depth: bool,
+                 device: torch.device | str = "cpu") -> None:
+        self.device = torch.device(device)
+        parts = [self._read(DemoStore.open(p), p, action_horizon, depth) for p in paths]
+        self.spec: DepthSpec = parts[0]["spec"]
+        for p, part in zip(paths, parts, strict=True):
+            if part["spec"] != self.spec:
+                raise StepsError(f"{p} holds {sizes(part['spec'])}, {paths[0]} {sizes(self.spec)}")
+        offsets = np.cumsum([0] + [len(part["state"]) for part in parts])
+        start = np.concatenate([part["start"] + off for part, off in zip(parts, offsets, strict=False)])
+        self.state_np = np.concatenate([part["state"] for part in parts])
+        self.labels_np = np.concatenate([part["labels"] for part in parts])
+        self.chunk_np = np.concatenate([part["chunk"] for part in parts])
+        back = np.arange(obs_horizon - 1, -1, -1)
+        stacks = np.maximum(np.arange(len(start))[:, None] - back, start[:, None])
+        self.stack_index = torch.from_numpy(stacks).to(self.device)
+        self.frames = (torch.from_numpy(np.concatenate([part["frames"] for part in parts])).to(self.device)
+                       if depth else None)
+        self.state, self.labels, self.chunk = (torch.from_numpy(a).to(self.device)
+                                               for a in (self.state_np, self.labels_np, self.chunk_np))
+
+    @staticmethod
+    def _read(store: DemoStore, path: Path, action_horizon: int, depth: bool) -> dict:
+        root, n = store.root, store.n_steps
+        if "data/labels" not in root:
+            raise StepsError(f"{path} records no perception labels: make it with `trainer student recipe`")
+        if store.attrs["chunk_horizon"] < action_horizon:
+            raise StepsError(f"{path} labels chunks of {store.attrs['chunk_horizon']} steps, the student "
+                             f"predicts {action_horizon}")
+        ends = store.episode_ends
+        lengths = np.diff(ends, prepend=0)
+        part = {"spec": store.depth_spec, "state": np.asarray(root["data/state"][:n], np.float32),
+                "labels": np.asarray(root["data/labels"][:n], np.float32),
+                "chunk": np.asarray(root["data/chunk"][:n, :action_horizon], np.float32),
+                "start": np.repeat(ends - lengths, lengths)}
+        if depth:
+            scale, spec = float(store.attrs["depth_scale"]), store.depth_spec
+            blocks = (root["data/depth"][i:i + _NORMALISE_BLOCK] for i in range(0, n, _NORMALISE_BLOCK))
+            part["frames"] = np.concatenate([normalise(block, scale, spec) for block in blocks])
+        return part
+
+    def __len__(self) -> int:
+        return len(self.state_np)
+
+    def batch(self, index: torch.Tensor) -> StepBatch:
+        index = index.to(self.device)
+        depth = None if self.frames is None else self.frames[self.stack_index[index]]
+        return StepBatch(depth, self.state[index], self.labels[index], self.chunk[index])
