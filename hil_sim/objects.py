@@ -1,8 +1,14 @@
 """The 12 graspable object kinds (paper: 6 seen, 6 unseen) and user objects loaded from a file.
 
-Every kind is procedural: a few MuJoCo primitives or a generated mesh with a plausible size, mass and
-friction, sized to fit the Panda's 8 cm gripper. Each object becomes one free body named ``obj_<name>``
-whose geoms are named ``obj_<name>_g<i>``; ``World`` parks the bodies that are not in play.
+Every built-in kind is procedural: a few MuJoCo primitives or a generated mesh with a plausible size, mass
+and friction, sized to fit the Panda's 8 cm gripper. Each becomes one free body named ``obj_<name>`` whose
+geoms are named ``obj_<name>_g<i>``; ``World`` parks the bodies that are not in play.
+
+A user object is an MJCF file or a mesh that MuJoCo itself loads (``mujoco.MjSpec``), so its geoms, nested
+bodies, defaults, masses, frictions and mesh assets are what MuJoCo makes of them. The world checks only
+what it needs (one rigid top body, a narrow side the gripper spans, a pose it rests in) and puts that body
+inside a free body ``obj_<name>`` centred on its bounding box, axes as in the file: the world, the reward
+and the expert read an object's position as its centre and its z axis as up.
 """
 
 from __future__ import annotations
@@ -10,6 +16,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+
+import mujoco
+import numpy as np
 
 
 class ObjectError(ValueError):
@@ -22,6 +31,10 @@ class UnknownObjectError(ObjectError):
 
 class MissingAssetError(ObjectError, FileNotFoundError):
     """A user object path that does not exist or has an unsupported format."""
+
+
+class InvalidObjectError(ObjectError):
+    """A user object file that MuJoCo refuses, or that the world cannot place and grasp."""
 
 
 @dataclass(frozen=True)
@@ -49,8 +62,6 @@ class ObjectKind:
     rgba: tuple[float, float, float, float] = (0.8, 0.3, 0.2, 1.0)
     mesh_vertices: tuple[float, ...] = ()
     """Flat xyz list for a generated mesh referenced by ``Geom.mesh``."""
-    mesh_file: str = ""
-    """Path of a user mesh (.stl/.obj) referenced by ``Geom.mesh``."""
     seen: bool = True
 
     @property
@@ -103,9 +114,44 @@ SEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if k.seen)
 UNSEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if not k.seen)
 GROUPS: dict[str, tuple[str, ...]] = {"seen": SEEN, "unseen": UNSEEN, "all": SEEN + UNSEEN}
 _MESH_SUFFIXES = (".stl", ".obj")
+MESH_DENSITY = 1000.0
+"""kg/m^3 of a bare mesh object: MuJoCo's default geom density (about a fruit's, so a 6 cm cube weighs
+216 g). For another mass or friction, write an MJCF with the mesh beside it."""
+MAX_WIDTH_M = 0.078
+"""Widest narrow side: the gripper opens 8 cm; a millimetre is left on either side."""
+REST_S, REST_SPEED = 2.0, (0.01, 0.2)
+"""Dropped onto a flat table in its file's pose, an object must move slower than (m/s, rad/s) after that
+time: it may settle or fall over first, but it must come to rest."""
+_TABLE_FRICTION = (0.8, 0.005, 0.0001)
+"""The world's table (``hil_sim.world._scene_xml``): the rest check drops objects on the same surface."""
 
 
-def resolve(name_or_path: str, category_id: int = 13) -> ObjectKind:
+@dataclass(frozen=True)
+class UserObject:
+    """An object from a user's file, checked and measured by ``resolve``; ``add_to`` loads it into a spec."""
+
+    name: str
+    category_id: int
+    path: Path
+    offset: tuple[float, float, float]
+    """Where the file's world origin lies in the free body's frame: minus the bounding box's centre."""
+    turn: tuple[float, float, float, float]
+    """The free body's frame from the file's world frame (w, x, y, z): a turn about z only."""
+    seen: bool = False
+
+    @property
+    def body_name(self) -> str:
+        return f"obj_{self.name}"
+
+    def add_to(self, spec: mujoco.MjSpec, pos: tuple[float, float, float] = (0.0, 0.0, -1.0)) -> None:
+        """Attach the file's body to ``spec`` inside the free body ``body_name`` placed at ``pos``."""
+        _attach(spec, self.path, self.body_name, pos, self.offset, self.turn)
+
+
+AnyObject = ObjectKind | UserObject
+
+
+def resolve(name_or_path: str, category_id: int = 13) -> AnyObject:
     """A built-in kind by name, or a user object from a mesh (.stl/.obj) or MJCF (.xml) path."""
     if name_or_path in KINDS:
         return KINDS[name_or_path]
@@ -113,54 +159,168 @@ def resolve(name_or_path: str, category_id: int = 13) -> ObjectKind:
     if not looks_like_path:
         raise UnknownObjectError(f"unknown object kind {name_or_path!r}; built-in kinds: {', '.join(KINDS)} "
                                  f"(or give a path to an .stl/.obj mesh or an MJCF .xml)")
-    path = Path(name_or_path).expanduser()
+    path = Path(name_or_path).expanduser().resolve()
     if not path.is_file():
-        raise MissingAssetError(f"object asset {str(path)!r} does not exist")
+        raise MissingAssetError(f"object asset {name_or_path!r} does not exist")
+    if path.suffix.lower() not in (*_MESH_SUFFIXES, ".xml"):
+        raise MissingAssetError(f"object asset {name_or_path!r} has unsupported format {path.suffix!r} "
+                                f"(use .stl, .obj or an MJCF .xml)")
+    return _measure(path, category_id)
+
+
+def _measure(path: Path, category_id: int) -> UserObject:
+    """Load the object alone on a table, measure its bounds and check that the world can use it."""
+    name = "".join(c if c.isalnum() else "_" for c in path.name).lower()  # a.xml and a.obj differ
+    spec = mujoco.MjSpec()
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1, 1, 0.1], friction=_TABLE_FRICTION)
+    _attach(spec, path, "object", (0.0, 0.0, 0.0))
+    model = _compile(spec, path)
+    body = model.body("object").id
+    geoms = colliding_geoms(model, body)
+    if not geoms.size:
+        raise InvalidObjectError(f"object {str(path)!r} has no geom that collides (contype or conaffinity)")
+    points = geom_corners(model, body, geoms)
+    _check_rests(model, float(points[:, 2].min()), path)
+    yaw = _narrowest_yaw(points)
+    turn = np.array([np.cos(yaw / 2), 0.0, 0.0, -np.sin(yaw / 2)])
+    points = _turned(points, turn)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    width = float(min(hi[:2] - lo[:2]))
+    if width > MAX_WIDTH_M:
+        raise InvalidObjectError(f"object {str(path)!r} is {width * 100:.1f} cm across its narrower "
+                                 f"horizontal side; the gripper spans {MAX_WIDTH_M * 100:.1f} cm "
+                                 f"(lengths are in metres)")
+    return UserObject(name, category_id, path, _floats(-(lo + hi) / 2), _floats(turn))
+
+
+def _turned(points: np.ndarray, quat: np.ndarray) -> np.ndarray:
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, quat)
+    return points @ rot.reshape(3, 3).T
+
+
+def _narrowest_yaw(points: np.ndarray) -> float:
+    """The direction in the horizontal plane (0 to 180 deg in half degrees; the first of equals) across which
+    the points are narrowest. Made the object's x axis, its x and y are its narrow and long sides whatever yaw
+    the file drew it at: the expert grasps across the narrower one, the width the gripper must span."""
+    yaws = np.radians(np.arange(0.0, 180.0, 0.5))
+    widths = np.ptp(points[:, :2] @ np.stack([np.cos(yaws), np.sin(yaws)]), axis=0)
+    return float(yaws[np.argmin(np.round(widths, 6))])
+
+
+def _check_rests(model: mujoco.MjModel, bottom: float, path: Path) -> None:
+    """Drop the object (its free joint the model's only joint) 2 mm onto the table in its file's pose, as
+    ``World`` places it; refuse one still rolling or rocking after ``REST_S``: the expert plans from the
+    object's pose as it lies. (Unstable balance passes, as the built-in pear's: nothing nudges it.)"""
+    data = mujoco.MjData(model)
+    data.qpos[2] = 0.002 - bottom
+    mujoco.mj_step(model, data, nstep=round(REST_S / model.opt.timestep))
+    speed = np.linalg.norm(data.qvel[:3]), np.linalg.norm(data.qvel[3:6])
+    if not (speed[0] < REST_SPEED[0] and speed[1] < REST_SPEED[1]):
+        raise InvalidObjectError(f"object {str(path)!r} does not come to rest on a table in its file's pose "
+                                 f"(after {REST_S:g} s it moves at {speed[0] * 100:.1f} cm/s, "
+                                 f"{speed[1]:.2f} rad/s); pose it lying on a side")
+
+
+def _attach(spec: mujoco.MjSpec, path: Path, body_name: str, pos: tuple[float, ...],
+            offset: tuple[float, ...] = (0.0, 0.0, 0.0), turn: tuple[float, ...] = (1.0, 0.0, 0.0, 0.0)
+            ) -> None:
+    """The file's top body, welded inside a new free body ``body_name`` at ``pos`` through a frame
+    (``offset``, ``turn``) that puts its bounding box's centre at the free body's origin."""
+    user = _load(path)
+    top = _top_body(user, path)
+    free = spec.worldbody.add_body(name=body_name, pos=list(pos))
+    free.add_freejoint(name=f"{body_name}_free")
+    free.add_frame(pos=list(offset), quat=list(turn)).attach_body(top, f"{body_name}/", "")
+
+
+def _load(path: Path) -> mujoco.MjSpec:
     if path.suffix.lower() in _MESH_SUFFIXES:
-        return _mesh_object(path, category_id)
-    if path.suffix.lower() == ".xml":
-        return _mjcf_object(path, category_id)
-    raise MissingAssetError(f"object asset {str(path)!r} has unsupported format {path.suffix!r} "
-                            f"(use .stl, .obj or an MJCF .xml)")
-
-
-def _safe_name(path: Path) -> str:
-    return "".join(c if c.isalnum() else "_" for c in path.stem).lower() or "user"
-
-
-def _mesh_object(path: Path, category_id: int) -> ObjectKind:
-    """A user mesh: 0.15 kg, friction 0.9, collided as its convex hull (MuJoCo's rule for meshes)."""
-    name = _safe_name(path)
-    return ObjectKind(name, category_id, (Geom("mesh", mesh=name),), 0.15, 0.9, (0.6, 0.5, 0.7, 1),
-                      mesh_file=str(path.resolve()), seen=False)
-
-
-def _mjcf_object(path: Path, category_id: int) -> ObjectKind:
-    """A user MJCF: the geoms of its first worldbody body (primitives only) become the object."""
-    import xml.etree.ElementTree as ET
-
+        return _mesh_spec(path)
     try:
-        root = ET.parse(path).getroot()
-    except ET.ParseError as exc:
-        raise MissingAssetError(f"object MJCF {str(path)!r} is not valid XML: {exc}") from None
-    body = root.find("./worldbody/body")
-    geoms = body.findall("geom") if body is not None else []
-    if not geoms:
-        raise MissingAssetError(f"object MJCF {str(path)!r} has no <worldbody><body> with <geom>s")
-    parsed = []
+        return mujoco.MjSpec.from_file(str(path))
+    except ValueError as exc:
+        raise InvalidObjectError(f"object {str(path)!r}: {_first_line(exc)}") from None
+
+
+def _mesh_spec(path: Path) -> mujoco.MjSpec:
+    """A bare mesh as the one-geom MJCF body MuJoCo would make of it, weighed at ``MESH_DENSITY``."""
+    spec = mujoco.MjSpec()
+    spec.add_mesh(name="mesh", file=str(path))
+    body = spec.worldbody.add_body(name="mesh")
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="mesh", density=MESH_DENSITY)
+    return spec
+
+
+def _top_body(spec: mujoco.MjSpec, path: Path) -> mujoco.MjsBody:
+    """The file's one top body, its free joint removed (the world gives it one): refuse a file with none or
+    several, or with any other joint, since an object must move as one rigid body."""
+    tops = list(spec.worldbody.bodies)
+    if len(tops) != 1:
+        found = ", ".join(repr(b.name) for b in tops) or "none"
+        raise InvalidObjectError(f"object {str(path)!r} must hold one top body (the object) in <worldbody>; "
+                                 f"found {found}")
+    for joint in list(spec.joints):
+        if joint.type != mujoco.mjtJoint.mjJNT_FREE or joint.parent != tops[0]:
+            raise InvalidObjectError(f"object {str(path)!r}: joint {joint.name!r} in body "
+                                     f"{joint.parent.name!r}; an object is one rigid body (nested bodies "
+                                     f"welded, at most a free joint on the top one)")
+        spec.delete(joint)
+    return tops[0]
+
+
+def _compile(spec: mujoco.MjSpec, path: Path) -> mujoco.MjModel:
+    try:
+        return spec.compile()
+    except ValueError as exc:
+        raise InvalidObjectError(f"object {str(path)!r}: {_first_line(exc)}") from None
+
+
+def colliding_geoms(m: mujoco.MjModel, root: int) -> np.ndarray:
+    """Geoms that collide (visual-only ones excluded) in the bodies under the top-level body ``root``."""
+    geoms = np.flatnonzero(m.body_rootid[m.geom_bodyid] == root)
+    return geoms[(m.geom_contype[geoms] | m.geom_conaffinity[geoms]) != 0]
+
+
+def local_bounds(m: mujoco.MjModel, root: int, geoms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounds of the geoms' boxes in the frame of their ancestor body ``root`` (exact for
+    primitives whose axes are that frame's, conservative for turned ones)."""
+    pts = geom_corners(m, root, geoms)
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+def geom_corners(m: mujoco.MjModel, root: int, geoms: np.ndarray) -> np.ndarray:
+    """The 8 corners of each geom's bounding box (its own axes) in ``root``'s frame, (8 * len(geoms), 3)."""
+    signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
+    corners = []
     for g in geoms:
-        gtype = g.get("type", "sphere")
-        if gtype == "mesh":
-            raise MissingAssetError(f"object MJCF {str(path)!r}: mesh geoms are not supported, "
-                                    f"pass the mesh file itself")
-        parsed.append(Geom(gtype, _floats(g.get("size", "0.03")), _floats(g.get("pos", "0 0 0")),
-                           _floats(g.get("euler", "0 0 0"))))
-    mass = 0.15
-    return ObjectKind(_safe_name(path), category_id, tuple(parsed), mass, 0.9, (0.6, 0.5, 0.7, 1), seen=False)
+        pos, quat = _pose_in(m, root, g)
+        centre, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
+        rot = np.zeros(9)
+        mujoco.mju_quat2Mat(rot, quat)
+        corners.append((centre + signs * half) @ rot.reshape(3, 3).T + pos)
+    return np.concatenate(corners)
 
 
-def _floats(text: str) -> tuple[float, ...]:
-    return tuple(float(v) for v in text.split())
+def _pose_in(m: mujoco.MjModel, root: int, geom: int) -> tuple[np.ndarray, np.ndarray]:
+    """Position and quaternion of ``geom`` in ``root``'s frame, through the bodies between them as compiled.
+    A geom of ``root`` itself keeps its compiled numbers untouched (built-in kinds' bounds stay exact)."""
+    pos, quat = m.geom_pos[geom], m.geom_quat[geom]
+    body = m.geom_bodyid[geom]
+    while body != root:
+        outer_pos, outer_quat = np.zeros(3), np.zeros(4)
+        mujoco.mju_mulPose(outer_pos, outer_quat, m.body_pos[body], m.body_quat[body], pos, quat)
+        pos, quat, body = outer_pos, outer_quat, m.body_parentid[body]
+    return pos, quat
+
+
+def _first_line(exc: Exception) -> str:
+    return str(exc).strip().splitlines()[0]
+
+
+def _floats(values: np.ndarray) -> tuple[float, ...]:
+    return tuple(float(v) for v in values)
 
 
 def _join(values: tuple[float, ...]) -> str:
@@ -168,7 +328,7 @@ def _join(values: tuple[float, ...]) -> str:
 
 
 def body_xml(kind: ObjectKind) -> str:
-    """The free body MJCF of one object; the mass is split evenly over its geoms."""
+    """The free body MJCF of one built-in kind; the mass is split evenly over its geoms."""
     rgba = " ".join(map(str, kind.rgba))
     geoms = []
     for i, g in enumerate(kind.geoms):
@@ -183,9 +343,7 @@ def body_xml(kind: ObjectKind) -> str:
 
 
 def mesh_xml(kind: ObjectKind) -> str:
-    """The <asset> entry for a generated or user mesh ('' when the kind has none)."""
+    """The <asset> entry of a built-in kind's generated mesh ('' when it has none)."""
     if kind.mesh_vertices:
         return f'<mesh name="{kind.name}" vertex="{" ".join(map(str, kind.mesh_vertices))}"/>'
-    if kind.mesh_file:
-        return f'<mesh name="{kind.name}" file="{kind.mesh_file}"/>'
     return ""

@@ -126,7 +126,7 @@ class World:
         self.intr: Intrinsics = d455_intrinsics(self.spec)
         self.randomisation = randomisation or Randomisation()
         resolved = [objects.resolve(k, category_id=13 + i) for i, k in enumerate(kinds)]
-        self.kinds: dict[str, objects.ObjectKind] = {k: r for k, r in zip(kinds, resolved, strict=True)}
+        self.kinds: dict[str, objects.AnyObject] = dict(zip(kinds, resolved, strict=True))
         top, left = self.spec.centred_window()
         self.model = _compile(list(self.kinds.values()), self.intr, self.intr.window(top, left, self.spec),
                               timestep)
@@ -136,7 +136,7 @@ class World:
         self.camera = DepthCamera(self.model, CAMERA, self.intr)
         self.policy_camera = DepthCamera(self.model, POLICY_CAMERA, self.intr.window(top, left, self.spec))
         self.episode: Episode | None = None
-        self.kind: objects.ObjectKind | None = None
+        self.kind: objects.AnyObject | None = None
 
     # --- episode ------------------------------------------------------------------------------------
     def reset(self, kind: str, seed: int, *, randomise: bool = True) -> Episode:
@@ -208,8 +208,9 @@ class World:
         """Put the episode's object on the table; park the others under the floor, inert."""
         m, d, obj = self.model, self.data, self._ids.objects[name]
         active = ep is not None
-        m.geom_contype[obj.geoms] = m.geom_conaffinity[obj.geoms] = int(active)
-        m.body_gravcomp[obj.body] = 0.0 if active else 1.0
+        if not active:  # an active object keeps the contacts it was compiled with (restored at reset)
+            m.geom_contype[obj.geoms] = m.geom_conaffinity[obj.geoms] = 0
+        m.body_gravcomp[obj.bodies] = 0.0 if active else 1.0
         if active:
             pos = (*ep.object_xy, TABLE_Z + obj.bottom_offset + 0.002)
             quat = (np.cos(ep.object_yaw / 2), 0.0, 0.0, np.sin(ep.object_yaw / 2))
@@ -295,7 +296,7 @@ class World:
         touching = [False, False]
         for c in self.data.contact[: self.data.ncon]:
             bodies = {int(self.model.geom_bodyid[c.geom1]), int(self.model.geom_bodyid[c.geom2])}
-            if obj.body in bodies:
+            if not bodies.isdisjoint(obj.bodies):
                 for i, f in enumerate(fingers):
                     touching[i] |= f in bodies
         return touching[0], touching[1]
@@ -343,7 +344,10 @@ class World:
 @dataclass(frozen=True)
 class _Object:
     body: int
+    """The free body; a user object's own bodies hang under it."""
+    bodies: np.ndarray
     geoms: np.ndarray
+    """The colliding geoms of all its bodies."""
     qpos: int
     dof: int
     bottom_offset: float
@@ -353,7 +357,7 @@ class _Object:
 class _Ids:
     """Model indices looked up once."""
 
-    def __init__(self, m: mujoco.MjModel, kinds: dict[str, objects.ObjectKind]) -> None:
+    def __init__(self, m: mujoco.MjModel, kinds: dict[str, objects.AnyObject]) -> None:
         self.arm_joints = jid = np.array([m.joint(n).id for n in ARM_JOINTS])
         self.arm_qpos = m.jnt_qposadr[jid]
         self.arm_dofs = m.jnt_dofadr[jid]
@@ -367,26 +371,13 @@ class _Ids:
         self.objects = {name: _object_ids(m, kind) for name, kind in kinds.items()}
 
 
-def _object_ids(m: mujoco.MjModel, kind: objects.ObjectKind) -> _Object:
+def _object_ids(m: mujoco.MjModel, kind: objects.AnyObject) -> _Object:
     body = m.body(kind.body_name).id
-    geoms = np.flatnonzero(m.geom_bodyid == body)
+    geoms = objects.colliding_geoms(m, body)
     joint = m.body_jntadr[body]
-    lo, hi = _local_bounds(m, geoms)
-    return _Object(body, geoms, int(m.jnt_qposadr[joint]), int(m.jnt_dofadr[joint]), float(-lo[2]),
-                   (hi - lo) / 2)
-
-
-def _local_bounds(m: mujoco.MjModel, geoms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned bounds of the geoms' boxes in the body frame (exact for upright primitives)."""
-    corners = []
-    for g in geoms:
-        centre, half = m.geom_aabb[g, :3], m.geom_aabb[g, 3:]
-        rot = np.zeros(9)
-        mujoco.mju_quat2Mat(rot, m.geom_quat[g])
-        signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T
-        corners.append((centre + signs * half) @ rot.reshape(3, 3).T + m.geom_pos[g])
-    pts = np.concatenate(corners)
-    return pts.min(axis=0), pts.max(axis=0)
+    lo, hi = objects.local_bounds(m, body, geoms)
+    return _Object(body, np.flatnonzero(m.body_rootid == body), geoms, int(m.jnt_qposadr[joint]),
+                   int(m.jnt_dofadr[joint]), float(-lo[2]), (hi - lo) / 2)
 
 
 @dataclass
@@ -411,11 +402,16 @@ def _round(values, digits: int = 6) -> tuple:
     return tuple(round(float(v), digits) for v in np.ravel(values))
 
 
-def _compile(kinds: list[objects.ObjectKind], intr: Intrinsics, policy_intr: Intrinsics,
+def _compile(kinds: list[objects.AnyObject], intr: Intrinsics, policy_intr: Intrinsics,
              timestep: float) -> mujoco.MjModel:
-    xml = _scene_xml(kinds, intr, policy_intr, timestep)
+    """Built-in kinds are written into the scene's MJCF; user objects are attached from their own files after
+    it, so a world of built-in kinds alone compiles exactly as it always has."""
+    xml = _scene_xml([k for k in kinds if isinstance(k, objects.ObjectKind)], intr, policy_intr, timestep)
     try:
         spec = mujoco.MjSpec.from_string(xml, _franka_includes())
+        for kind in kinds:
+            if isinstance(kind, objects.UserObject):
+                kind.add_to(spec)
         _absolute_meshes(spec)
         for body in spec.bodies:
             if body.name.startswith("panda0_"):
@@ -424,6 +420,8 @@ def _compile(kinds: list[objects.ObjectKind], intr: Intrinsics, policy_intr: Int
             if "gripper" in actuator.name:  # the wheel's kp 500 squeezes a 6 cm object with ~16 N
                 actuator.gainprm[0], actuator.biasprm[1] = FINGER_KP, -FINGER_KP
         return spec.compile()
+    except objects.ObjectError:  # a user object's own error already names its file
+        raise
     except ValueError as exc:
         raise objects.MissingAssetError(f"cannot build the world: {str(exc).splitlines()[0]}") from None
 

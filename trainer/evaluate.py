@@ -118,8 +118,9 @@ def first_close(closes: list[tuple[int, np.ndarray]]) -> dict:
 
 
 def table(result: dict) -> str:
-    rows = [f"{'object':<12} {'success':>8}"]
-    rows += [f"{k:<12} {v:>8.1%}" for k, v in result["per_object"].items()]
+    width = max(12, *map(len, result["per_object"]))  # a user object is named by its path
+    rows = [f"{'object':<{width}} {'success':>8}"]
+    rows += [f"{k:<{width}} {v:>8.1%}" for k, v in result["per_object"].items()]
     lo, hi = result["ci95"]
     closes = result["first_close"]
     if closes["episodes"]:
@@ -128,7 +129,7 @@ def table(result: dict) -> str:
                     f"object - hand {closes['offset_cm_mean']} cm (std {closes['offset_cm_std']}), "
                     f"{closes['horizontal_cm_median']} cm apart horizontally (median"
                     + (f"; 95 % CI {interval})" if interval else ")"))
-    rows.append(f"{'ALL':<12} {result['success_rate']:>8.1%}  (95 % CI {lo:.1%}-{hi:.1%}; "
+    rows.append(f"{'ALL':<{width}} {result['success_rate']:>8.1%}  (95 % CI {lo:.1%}-{hi:.1%}; "
                 f"{result['episodes']} episodes, {result['policy']}, sensor {result['sensor']}, "
                 f"restore {result['restore']})")
     return "\n".join(rows)
