@@ -50,6 +50,11 @@ class Run:
     sensor: str = "clean"
     restore: str = "none"
 
+    def __post_init__(self) -> None:
+        for flag, value in (("--rate", self.rate_hz), ("--seconds", self.seconds)):
+            if not value > 0:  # 0 Hz would "run" and report NOT HELD against a target of 0
+                raise ValueError(f"{flag} must be positive, got {value:g}")
+
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m hil_sim", description=__doc__.split("\n\n")[0],

@@ -152,9 +152,9 @@ def test_the_table_gives_the_closing_interval_only_when_there_is_one() -> None:
 def test_first_close_offsets_print_as_rounded_centimetres() -> None:
     closes = first_close([(30, np.array([0.0328, -0.0328, 0.0], dtype=np.float32))])
     assert closes["offset_cm_mean"] == [3.28, -3.28, 0.0]
-    assert "[3.28, -3.28, 0.0] cm" in table({"per_object": {}, "ci95": [0.0, 1.0], "success_rate": 0.0,
-                                             "episodes": 1, "policy": "p", "sensor": "clean", "restore": "none",
-                                             "first_close": closes})
+    result = {"per_object": {}, "ci95": [0.0, 1.0], "success_rate": 0.0, "episodes": 1, "policy": "p",
+              "sensor": "clean", "restore": "none", "first_close": closes}
+    assert "[3.28, -3.28, 0.0] cm" in table(result)
 
 
 def test_trainer_help_goes_to_stdout_and_an_unknown_command_is_named() -> None:
