@@ -18,6 +18,7 @@ from runtime.loop import EXIT_CAMERA, ControlLoop, LoopConfig, RobotLink
 from runtime.policy import Policy, PolicyError, SessionConfig
 from runtime.preprocess import RESTORE_METHODS
 from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT
+from runtime.realtime import raise_priority
 from runtime.transport import CurveKeys, TransportError
 
 EXIT_USAGE = 2
@@ -54,6 +55,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
+    _announce_priority()  # before the policy: onnxruntime's threads, started with it, inherit the priority
     try:
         policy = Policy(args.model, SessionConfig(args.threads, args.spin), seed=args.seed)
         config = loop_config(args, policy.metadata.control_rate_hz)
@@ -90,6 +92,11 @@ def loop_config(args: argparse.Namespace, policy_rate_hz: float) -> LoopConfig:
         startup = min(startup, args.seconds)
     return LoopConfig(rate_hz=policy_rate_hz if args.rate is None else args.rate, seconds=args.seconds,
                       restore=args.restore, startup_timeout_s=startup)
+
+
+def _announce_priority() -> None:
+    raised, granted = raise_priority()
+    print(f"runtime: {'' if raised else 'WARNING '}{granted}", file=sys.stderr, flush=True)
 
 
 def _stop_on_signals() -> threading.Event:
