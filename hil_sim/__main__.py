@@ -167,7 +167,8 @@ def benchmark(run: Run) -> dict:
                sim=sim_stats, load_avg=os.getloadavg())
     (run.report_dir / "report.json").write_text(json.dumps(doc, indent=2) + "\n")
     report.histogram(ticks, commands, run.report_dir / "latency.png",
-                     title=f"hil_sim: {run.rate_hz:g} Hz for {run.seconds:g} s, {doc['ticks']} ticks")
+                     title=f"hil_sim: {run.rate_hz:g} Hz for {run.seconds:g} s, {doc['ticks']} ticks",
+                     rate_hz=run.rate_hz, camera_fps=sim_stats["camera_fps"])
     return doc
 
 
