@@ -1,4 +1,4 @@
-"""``make demo`` (``python -m hil_sim.demo``): the grasp judge, the event count, one short episode end to end."""
+"""``python -m hil_sim.demo`` (make demo): the grasp judge, the event count, one short episode end to end."""
 
 import json
 import subprocess
