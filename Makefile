@@ -4,14 +4,20 @@ export MUJOCO_GL ?= egl
 
 .PHONY: install demo test lint
 
+# The demo needs only the deploy side (runtime, driver, MuJoCo rig): no torch, no training extras.
+.installed-demo: pyproject.toml scripts/install.sh
+	./scripts/install.sh demo
+	touch $@
+
+# Tests cover training and export too: every extra.
 .installed: pyproject.toml scripts/install.sh
-	./scripts/install.sh
-	touch .installed
+	./scripts/install.sh all
+	touch $@
 
 install: .installed
 
-demo: .installed
-	$(PY) -m hil_sim --seconds 20 --rate 10 --report runs/demo
+demo: .installed-demo
+	$(PY) -m hil_sim.demo
 
 test: .installed
 	$(PY) -m ruff check .

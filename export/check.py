@@ -1,6 +1,11 @@
 """``python -m export.check student.onnx [--checkpoint CKPT] --json``: parity of onnxruntime against the
 torch DDIM loop (diffusers' DDIMScheduler driving the checkpoint's network, same inputs and noise) and the
-latency of both, measured in one process with the same thread count."""
+latency of both, measured in one process with the same thread count.
+
+The file is opened exactly as the runtime opens it (``runtime.policy.Policy``). Parity needs the checkpoint
+and the [train] extra (torch); a clone has neither the checkpoint, which is not shipped, nor, after
+``make demo``, torch: then parity is reported as not checked, in one line, and the latency of onnxruntime
+alone is measured. A missing or unreadable file is one error line."""
 
 from __future__ import annotations
 
@@ -11,17 +16,18 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import onnx
 import onnxruntime as ort
-import torch
 
-from export.graph import example_inputs, read_metadata
-from runtime.metadata import MetadataError, PolicyMetadata
-from trainer.student import checkpoint
-from trainer.student.ddim import reference_scheduler
-from trainer.student.model import StudentPolicy
+from runtime.metadata import PolicyMetadata
+from runtime.policy import Policy, PolicyError, SessionConfig
+
+if TYPE_CHECKING:
+    import torch
+
+    from trainer.student.model import StudentPolicy
 
 
 class CheckError(RuntimeError):
@@ -31,6 +37,10 @@ class CheckError(RuntimeError):
 def reference_actions(policy: StudentPolicy, meta: PolicyMetadata, depth: torch.Tensor, state: torch.Tensor,
                       noise: torch.Tensor) -> torch.Tensor:
     """The eager torch loop the graph must reproduce: diffusers' DDIM steps, then robot units."""
+    import torch
+
+    from trainer.student.ddim import reference_scheduler
+
     sched = reference_scheduler(policy.config.train_timesteps, meta.ddim_steps, meta.ddim_spacing,
                                 policy.config.prediction)
     with torch.no_grad():
@@ -44,6 +54,7 @@ def reference_actions(policy: StudentPolicy, meta: PolicyMetadata, depth: torch.
 
 
 def session(path: Path, threads: int) -> ort.InferenceSession:
+    """A plain CPU session with ``threads`` intra-op threads (export.quantize times its variants with it)."""
     opts = ort.SessionOptions()
     opts.intra_op_num_threads = threads
     opts.inter_op_num_threads = 1
@@ -69,37 +80,94 @@ def timed_side_by_side(fns: list[Callable[[], object]], repeats: int, warmup: in
     return times
 
 
-def find_checkpoint(meta: PolicyMetadata, given: Path | None) -> Path:
-    path = given or Path(meta.training_data.get("checkpoint", ""))
-    if not path.is_file():
-        raise CheckError(f"checkpoint {str(path)!r} not found: pass --checkpoint")
+def find_checkpoint(meta: PolicyMetadata, model_path: Path, given: Path | None) -> Path | None:
+    """The checkpoint the file was exported from: ``given``, else the path in its metadata, else a file of
+    that name beside the model. None when none is found and none was given (a clone: not shipped)."""
+    from trainer.student import checkpoint
+
+    recorded = Path(meta.training_data.get("checkpoint", ""))
+    candidates = [given] if given else [recorded, model_path.parent / recorded.name]
+    path = next((c for c in candidates if c.name and c.is_file()), None)
+    if path is None:
+        if given:
+            raise CheckError(f"checkpoint {str(given)!r} not found")
+        return None
     want = meta.training_data.get("checkpoint_sha256")
     if want and checkpoint.sha256(path) != want:
         raise CheckError(f"checkpoint {path} does not match the one this policy was exported from (sha256)")
     return path
 
 
+def example_feeds(meta: PolicyMetadata, seed: int = 0) -> dict[str, np.ndarray]:
+    """Random inputs of the graph's static shapes: depth in [0, 1] with 10 % holes, state, start noise."""
+    rng, shapes = np.random.default_rng(seed), meta.input_shapes()
+    depth = rng.random(shapes["depth"], dtype=np.float32)
+    depth[rng.random(shapes["depth"]) < 0.1] = meta.preprocess.invalid_value
+    return {"depth": depth, "state": (rng.standard_normal(shapes["state"]) * 0.5).astype(np.float32),
+            "noise": rng.standard_normal(shapes["noise"], dtype=np.float32)}
+
+
+def parity_skipped(meta: PolicyMetadata, model_path: Path, given: Path | None) -> tuple[Path | None, str]:
+    """(checkpoint, "") when parity can be checked here, else (None, why not, in words)."""
+    try:
+        import torch  # noqa: F401  (the [train] extra)
+    except ImportError:
+        return None, "torch is not installed (the [train] extra: `make test` installs it)"
+    ckpt = find_checkpoint(meta, model_path, given)
+    if ckpt is None:
+        recorded = meta.training_data.get("checkpoint") or "(none recorded)"
+        return None, f"its checkpoint {Path(recorded).name} is not shipped; pass --checkpoint CKPT"
+    return ckpt, ""
+
+
 def run_check(model_path: Path, ckpt_path: Path | None = None, repeats: int = 30, threads: int = 2,
               trials: int = 3) -> dict:
-    meta = read_metadata(onnx.load(str(model_path)))
-    policy = checkpoint.load(find_checkpoint(meta, ckpt_path)).policy()
+    policy = Policy(model_path, SessionConfig(threads, False))
+    meta = policy.metadata
+    ckpt, skipped = parity_skipped(meta, model_path, ckpt_path)
+    feeds = example_feeds(meta)
+
+    def run_ort() -> np.ndarray:
+        return policy.session.run(["actions"], feeds)[0]
+
+    doc = {"model": str(model_path), "ddim_steps": meta.ddim_steps, "ddim_spacing": meta.ddim_spacing,
+           "threads": threads, "repeats": repeats, "parity_skipped": skipped or None}
+    if ckpt is None:
+        ort_ms = timed(run_ort, repeats)
+        doc.update(max_abs_err=None, torch_ms=None, torch_p99_ms=None, speedup=None)
+    else:
+        ort_ms = _torch_parity(doc, policy, ckpt, repeats, threads, trials)
+    doc.update(ort_ms=statistics.median(ort_ms), ort_p99_ms=float(np.percentile(ort_ms, 99)),
+               metadata=json.loads(meta.to_json()))
+    return doc
+
+
+def _torch_parity(doc: dict, policy: Policy, ckpt: Path, repeats: int, threads: int,
+                  trials: int) -> list[float]:
+    """Fill ``doc`` with the parity error and torch's latency; return onnxruntime's latency (ms per call),
+    the two timed side by side."""
+    import torch
+
+    from trainer.student import checkpoint
+
+    try:
+        net, meta = checkpoint.load(ckpt).policy(), policy.metadata
+    except checkpoint.CheckpointError as exc:
+        raise CheckError(str(exc)) from None
     torch.set_num_threads(threads)
-    sess = session(model_path, threads)
     errors = []
     for seed in range(trials):
-        depth, state, noise = example_inputs(meta, seed)
-        feeds = {"depth": depth.numpy(), "state": state.numpy(), "noise": noise.numpy()}
-        got = sess.run(["actions"], feeds)[0]
-        errors.append(float(np.abs(got - reference_actions(policy, meta, depth, state, noise).numpy()).max()))
-    ort_ms, torch_ms = timed_side_by_side([lambda: sess.run(["actions"], feeds),
-                                           lambda: reference_actions(policy, meta, depth, state, noise)],
+        feeds = example_feeds(meta, seed)
+        depth, state, noise = (torch.from_numpy(feeds[k]) for k in ("depth", "state", "noise"))
+        got = policy.session.run(["actions"], feeds)[0]
+        errors.append(float(np.abs(got - reference_actions(net, meta, depth, state, noise).numpy()).max()))
+    ort_ms, torch_ms = timed_side_by_side([lambda: policy.session.run(["actions"], feeds),
+                                           lambda: reference_actions(net, meta, depth, state, noise)],
                                           repeats)
-    return {"model": str(model_path), "max_abs_err": max(errors), "ddim_steps": meta.ddim_steps,
-            "ddim_spacing": meta.ddim_spacing, "threads": threads, "repeats": repeats,
-            "ort_ms": statistics.median(ort_ms), "ort_p99_ms": float(np.percentile(ort_ms, 99)),
-            "torch_ms": statistics.median(torch_ms), "torch_p99_ms": float(np.percentile(torch_ms, 99)),
-            "speedup": statistics.median(torch_ms) / statistics.median(ort_ms),
-            "metadata": json.loads(meta.to_json())}
+    doc.update(max_abs_err=max(errors), torch_ms=statistics.median(torch_ms),
+               torch_p99_ms=float(np.percentile(torch_ms, 99)),
+               speedup=statistics.median(torch_ms) / statistics.median(ort_ms))
+    return ort_ms
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -112,17 +180,22 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         report = run_check(args.model, args.checkpoint, args.repeats, args.threads)
-    except (CheckError, checkpoint.CheckpointError, MetadataError) as exc:
+    except (CheckError, PolicyError) as exc:
         print(f"export.check: {exc}", file=sys.stderr)
         return 2
+    if report["parity_skipped"]:
+        print(f"export.check: parity not checked: {report['parity_skipped']}; latency of onnxruntime only",
+              file=sys.stderr)
     if args.json:
         print(json.dumps(report))
+    elif report["max_abs_err"] is None:
+        print(f"{args.model}: K={report['ddim_steps']} ort {report['ort_ms']:.2f} ms (p99 "
+              f"{report['ort_p99_ms']:.2f})")
     else:
         print(f"{args.model}: K={report['ddim_steps']} max_abs_err={report['max_abs_err']:.2e} "
               f"ort {report['ort_ms']:.2f} ms, torch {report['torch_ms']:.2f} ms, "
               f"speedup {report['speedup']:.2f}x")
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -13,9 +13,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +29,7 @@ REPO = Path(__file__).resolve().parents[1]
 TRAINED_MODEL = REPO / "models" / "student.onnx"
 UNTRAINED_MODEL = REPO / "runs" / "hil" / "untrained_student.onnx"
 STARTUP_GRACE_S = 90.0
+WATCH_S = 0.1
 STEREO_CAMERA_HZ = 5.0
 """The lowest D455 frame rate (5/15/30 fps): a stereo frame costs ~150-350 ms on 2 shared cores
 (docs/stereo.md), so under load the camera falls below it and skips slots."""
@@ -49,6 +52,11 @@ class Run:
     camera_hz: float = 15.0
     sensor: str = "clean"
     restore: str = "none"
+
+    def __post_init__(self) -> None:
+        for flag, value in (("--rate", self.rate_hz), ("--seconds", self.seconds)):
+            if not value > 0:  # 0 Hz would "run" and report NOT HELD against a target of 0
+                raise ValueError(f"{flag} must be positive, got {value:g}")
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
@@ -107,8 +115,10 @@ def pin_cores() -> set[int]:
     return cores
 
 
-def run_runtime(run: Run) -> tuple[int, report.Usage]:
-    """Run the real runtime process to completion; its exit code and resource use."""
+def run_runtime(run: Run, watch: Callable[[], bool] | None = None) -> tuple[int, report.Usage]:
+    """Run the real runtime process to completion; its exit code and resource use. ``watch`` (the demo's
+    grasp judge) is called every ``WATCH_S`` while it runs; once it returns True the runtime is stopped as
+    an operator would stop it, with SIGINT: it commands hold and exits 0."""
     cmd = [sys.executable, "-m", "runtime", "--model", str(run.model), "--camera", f"hil:{run.camera}",
            "--robot", run.robot, "--rate", str(run.rate_hz), "--seconds", str(run.seconds),
            "--metrics", str(run.report_dir / "ticks.jsonl"), "--restore", run.restore]
@@ -127,7 +137,10 @@ def run_runtime(run: Run) -> tuple[int, report.Usage]:
                 proc.kill()
                 pid, status, usage = os.wait4(proc.pid, 0)
                 break
-            time.sleep(0.2)
+            if watch is not None and watch():
+                proc.send_signal(signal.SIGINT)
+                watch = None
+            time.sleep(WATCH_S)
         wall = time.monotonic() - start
     proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here: keep Popen from waiting again
     cpu = 100.0 * (usage.ru_utime + usage.ru_stime) / wall
@@ -162,7 +175,8 @@ def benchmark(run: Run) -> dict:
                sim=sim_stats, load_avg=os.getloadavg())
     (run.report_dir / "report.json").write_text(json.dumps(doc, indent=2) + "\n")
     report.histogram(ticks, commands, run.report_dir / "latency.png",
-                     title=f"hil_sim: {run.rate_hz:g} Hz for {run.seconds:g} s, {doc['ticks']} ticks")
+                     title=f"hil_sim: {run.rate_hz:g} Hz for {run.seconds:g} s, {doc['ticks']} ticks",
+                     rate_hz=run.rate_hz, camera_fps=sim_stats["camera_fps"])
     return doc
 
 

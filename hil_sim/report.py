@@ -118,25 +118,65 @@ def table(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def histogram(ticks: list[dict[str, Any]], commands: list[dict[str, Any]], path: Path, *, title: str) -> None:
-    """PNG of latency and capture->command distributions."""
+LATENCY_GOAL_MS = 25.0
+"""The runtime's latency goal at 10 Hz (docs/runtime.md): frame received -> command at the driver, p99."""
+
+
+def frame_age_caption(rate_hz: float, camera_fps: float | None) -> str | None:
+    """Why capture -> command has two clusters when the camera is slower than the loop; None otherwise."""
+    if camera_fps is None or camera_fps >= rate_hz:
+        return None
+    return (f"The camera ({camera_fps:.3g} fps) is slower than the loop ({rate_hz:g} Hz): ticks between two "
+            "frames act on the last frame again, one loop period older, so capture -> command falls in two "
+            "clusters a period apart.")
+
+
+def histogram(ticks: list[dict[str, Any]], commands: list[dict[str, Any]], path: Path, *, title: str,
+              rate_hz: float, camera_fps: float | None = None) -> None:
+    """PNG: the latency distributions (left) and each tick's latency over the run (right), both with the
+    goal and the tick period as lines; late ticks marked on the right."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     rows = join(ticks, commands)
-    fig, ax = plt.subplots(figsize=(7, 4))
+    caption = frame_age_caption(rate_hz, camera_fps)
+    fig, (hist, over_time) = plt.subplots(1, 2, figsize=(11, 4.4 if caption else 4))
     for start, label in (("t_receive", "frame received -> command at driver"),
                          ("t_capture", "capture -> command at driver")):
         values = np.asarray(_diffs(rows, start, "t_driver")) * 1e3
         if values.size:
-            ax.hist(values, bins=60, alpha=0.6, label=f"{label} (p99 {np.percentile(values, 99):.1f} ms)")
-    ax.set_xlabel("ms")
-    ax.set_ylabel("ticks")
-    ax.set_title(title if ax.has_data() else f"{title}: no command reached the driver")
-    if ax.has_data():
-        ax.legend()
-    fig.tight_layout()
+            hist.hist(values, bins=60, alpha=0.6, label=f"{label} (p99 {np.percentile(values, 99):.1f} ms)")
+    hist.set_xlabel("ms")
+    hist.set_ylabel("ticks")
+    _ticks_over_time(over_time, rows)
+    lines = ((LATENCY_GOAL_MS, {"color": "green", "ls": "--", "label": f"goal {LATENCY_GOAL_MS:g} ms"}),
+             (1e3 / rate_hz, {"color": "black", "ls": ":", "label": f"tick period {1e3 / rate_hz:g} ms"}))
+    for ms, style in lines:
+        hist.axvline(ms, **style)
+        over_time.axhline(ms, **style)
+    hist.legend(fontsize=7)
+    over_time.legend(fontsize=7)
+    reached = any(r["t_driver"] is not None for r in rows)
+    fig.suptitle(title if reached else f"{title}: no command reached the driver")
+    if caption:
+        fig.text(0.5, 0.01, caption, ha="center", fontsize=8, wrap=True)
+    fig.tight_layout(rect=(0, 0.06 if caption else 0, 1, 1))
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def _ticks_over_time(ax: Any, rows: list[dict[str, Any]]) -> None:
+    """Frame received -> command at the driver per tick, seconds into the run; late ticks as red crosses at
+    their latency (or on the axis when their command never arrived)."""
+    t0 = rows[0]["deadline"] if rows else 0.0
+    done = [r for r in rows if r.get("t_receive") is not None and r["t_driver"] is not None]
+    ax.plot([r["deadline"] - t0 for r in done], [1e3 * (r["t_driver"] - r["t_receive"]) for r in done], ".",
+            ms=3, label="frame received -> command at driver")
+    late = [r for r in rows if r.get("late")]
+    ax.plot([r["deadline"] - t0 for r in late],
+            [1e3 * (r["t_driver"] - r["t_receive"]) if r in done else 0.0 for r in late], "x", color="red",
+            ms=7, label=f"late ticks ({len(late)})")
+    ax.set_xlabel("s into the run")
+    ax.set_ylabel("ms")

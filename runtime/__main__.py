@@ -18,6 +18,7 @@ from runtime.loop import EXIT_CAMERA, ControlLoop, LoopConfig, RobotLink
 from runtime.policy import Policy, PolicyError, SessionConfig
 from runtime.preprocess import RESTORE_METHODS
 from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT
+from runtime.realtime import raise_priority
 from runtime.transport import CurveKeys, TransportError
 
 EXIT_USAGE = 2
@@ -35,8 +36,8 @@ def parser() -> argparse.ArgumentParser:
                    help="franka_driver state endpoint tcp://HOST:PORT; commands go to PORT+1 "
                         "(default %(default)s)")
     p.add_argument("--rate", type=float, metavar="HZ", help="control rate (default: the policy's metadata)")
-    p.add_argument("--seconds", type=float, metavar="S", help="stop cleanly after S seconds (default: run "
-                   "until SIGINT/SIGTERM)")
+    p.add_argument("--seconds", type=float, metavar="S", help="stop cleanly after S seconds, and wait no "
+                   "longer than that for the first frame and robot state (default: run until SIGINT/SIGTERM)")
     p.add_argument("--metrics", metavar="PATH", help="write one JSON line per tick (times in monotonic s)")
     p.add_argument("--restore", choices=RESTORE_METHODS, default="none",
                    help="fill depth holes before the policy: inpaint (OpenCV) for a policy trained on clean "
@@ -54,10 +55,10 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
+    _announce_priority()  # before the policy: onnxruntime's threads, started with it, inherit the priority
     try:
         policy = Policy(args.model, SessionConfig(args.threads, args.spin), seed=args.seed)
-        config = LoopConfig(rate_hz=args.rate or policy.metadata.control_rate_hz, seconds=args.seconds,
-                            restore=args.restore)
+        config = loop_config(args, policy.metadata.control_rate_hz)
         keys = CurveKeys.from_files(args.curve_secret, args.curve_server) if args.curve_secret else None
     except (PolicyError, TransportError, ValueError) as exc:
         return _fail(exc, EXIT_USAGE)
@@ -80,6 +81,22 @@ def main(argv: list[str] | None = None) -> int:
         code = loop.run()
         print(f"runtime: done, exit {code}: {loop.counts}", file=sys.stderr)
         return code
+
+
+def loop_config(args: argparse.Namespace, policy_rate_hz: float) -> LoopConfig:
+    """The loop's settings from the command line; a given --rate must be positive (0 is not "default")."""
+    if args.rate is not None and not args.rate > 0:
+        raise ValueError(f"--rate must be a positive number of Hz, got {args.rate:g}")
+    startup = LoopConfig.startup_timeout_s
+    if args.seconds is not None and args.seconds > 0:  # a short run should not wait 10 s for a robot
+        startup = min(startup, args.seconds)
+    return LoopConfig(rate_hz=policy_rate_hz if args.rate is None else args.rate, seconds=args.seconds,
+                      restore=args.restore, startup_timeout_s=startup)
+
+
+def _announce_priority() -> None:
+    raised, granted = raise_priority()
+    print(f"runtime: {'' if raised else 'WARNING '}{granted}", file=sys.stderr, flush=True)
 
 
 def _stop_on_signals() -> threading.Event:

@@ -100,6 +100,7 @@ class RobotLink:
     def __init__(self, address: str = DEFAULT_ROBOT, *, keys: CurveKeys | None = None,
                  ctx: zmq.Context | None = None) -> None:
         ctx = ctx or zmq.Context.instance()
+        self.address = address
         state_ep, command_ep = robot_endpoints(address)
         # ~300-byte states at up to 1 kHz, read once per tick or less: queue a few seconds of them.
         self._state = Newest(connect(ctx, zmq.SUB, state_ep, keys=keys, queue=STATE_QUEUE), "state")
@@ -212,7 +213,10 @@ class ControlLoop:
             self._take(self.camera.poll(settle - self.clock()))
         while self.robot.poll(0.05) is None and not self.stop.is_set():
             if self.clock() > end:
-                raise RobotStalled(f"no robot state within {self.config.startup_timeout_s} s of start")
+                address, waited = self.robot.address, self.config.startup_timeout_s
+                raise RobotStalled(f"no robot state on {address} within {waited:g} s of start; is the driver "
+                                   "running? start it with `python -m runtime.franka_driver --backend "
+                                   f"franka|mujoco --bind {address}`")
 
     def _first_deadline(self) -> float:
         """Phase-lock the ticks to the camera. Cutoffs fall between frame arrivals, as far from any as the two

@@ -73,6 +73,58 @@ class DepthSpec:
         return cls(**d)
 
 
+@dataclass(frozen=True)
+class StreamIntrinsics:
+    """Pinhole model of a depth stream: size, focal lengths and principal point in pixels, pixel centres at
+    integer coordinates (librealsense's ``rs.intrinsics``: width, height, fx, fy, ppx, ppy)."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+
+TRAINED_STREAM = StreamIntrinsics(848, 480, 424.51, 424.24, 415.71, 249.80)
+"""The stream the policies here are trained on: hil_sim's simulated D455 at 848x480 (a test keeps it equal
+to ``hil_sim.camera.Intrinsics``)."""
+
+
+def trained_stream(spec: DepthSpec) -> StreamIntrinsics:
+    """The trained stream at ``spec``'s stream size (scaled as ``hil_sim.camera.d455_intrinsics`` does)."""
+    base = TRAINED_STREAM
+    if (spec.stream_width, spec.stream_height) == (base.width, base.height):
+        return base
+    sx, sy = spec.stream_width / base.width, spec.stream_height / base.height
+    return StreamIntrinsics(spec.stream_width, spec.stream_height, base.fx * sx, base.fy * sy,
+                            (base.cx + 0.5) * sx - 0.5, (base.cy + 0.5) * sy - 0.5)
+
+
+def match_stream(raw: np.ndarray, stream: StreamIntrinsics, target: StreamIntrinsics) -> np.ndarray:
+    """A frame of another stream mode (a D4xx at 640x480 or 1280x720, another D400 model) as the trained
+    stream ``target`` (``trained_stream(spec)``) would have seen it: each target pixel takes the source
+    pixel on the same ray, so the policy's crop keeps its field of view (a pixel-space crop of another mode
+    would show it another scene). Nearest pixel on purpose, as in ``crop_resize``; rays the source does not
+    see are 0 (no data). A frame of the trained stream itself is returned untouched: the native path stays
+    bit-identical to training."""
+    if stream == target:
+        return raw
+    if raw.shape != (stream.height, stream.width):
+        raise PreprocessError(f"frame of shape {raw.shape} does not match its stream "
+                              f"{stream.width}x{stream.height}")
+    cols = _same_ray(target.width, target.cx, target.fx, stream.cx, stream.fx)
+    rows = _same_ray(target.height, target.cy, target.fy, stream.cy, stream.fy)
+    seen = (rows[:, None] >= 0) & (rows[:, None] < stream.height) & (cols >= 0) & (cols < stream.width)
+    out = raw[np.clip(rows, 0, stream.height - 1)[:, None], np.clip(cols, 0, stream.width - 1)]
+    return np.where(seen, out, np.uint16(0))
+
+
+def _same_ray(n: int, c: float, f: float, c_src: float, f_src: float) -> np.ndarray:
+    """Index of the source pixel on the ray of each of ``n`` target pixels along one axis."""
+    return np.rint((np.arange(n) - c) / f * f_src + c_src).astype(np.int64)
+
+
 def crop_resize(raw: np.ndarray, spec: DepthSpec, window: tuple[int, int] | None = None) -> np.ndarray:
     """Crop ``raw`` (uint16, H x W, any size holding the window) at ``window`` = (top, left) and
     nearest-neighbour resize to the policy resolution. Returns uint16, still in sensor units."""

@@ -17,14 +17,21 @@ COMMANDS = {
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] in (["-h"], ["--help"]):
+        print(usage())  # asked-for help is output, not an error: stdout, exit 0
+        return 0
     if not argv or argv[0] not in COMMANDS:
-        width = max(map(len, COMMANDS))
-        listing = "\n".join(f"  {name:<{width}}  {help_}" for name, (_, help_) in COMMANDS.items())
-        print(f"usage: python -m trainer <command> [--help]\n\ncommands:\n{listing}", file=sys.stderr)
-        return 0 if argv[:1] in (["-h"], ["--help"]) else 2
+        problem = f"unknown command {argv[0]!r}" if argv else "no command given"
+        print(f"{usage()}\npython -m trainer: error: {problem}", file=sys.stderr)
+        return 2
     module = importlib.import_module(COMMANDS[argv[0]][0])
     return module.main(argv[1:]) or 0
 
+
+def usage() -> str:
+    width = max(map(len, COMMANDS))
+    listing = "\n".join(f"  {name:<{width}}  {help_}" for name, (_, help_) in COMMANDS.items())
+    return f"usage: python -m trainer <command> [--help]\n\ncommands:\n{listing}"
 
 if __name__ == "__main__":
     sys.exit(main())

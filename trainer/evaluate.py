@@ -108,7 +108,8 @@ def first_close(closes: list[tuple[int, np.ndarray]]) -> dict:
     the grasp site then: mean and std per axis, and the median horizontal distance (cm) with its interval."""
     if not closes:
         return {"episodes": 0}
-    offsets = np.array([offset for _, offset in closes]) * 100
+    # float64 before rounding: a float32 rounded to 2 decimals prints as -3.2799999713897705
+    offsets = np.array([offset for _, offset in closes], dtype=np.float64) * 100
     horizontal = np.linalg.norm(offsets[:, :2], axis=1)
     return {"episodes": len(closes), "median_step": float(np.median([step for step, _ in closes])),
             "offset_cm_mean": offsets.mean(0).round(2).tolist(),

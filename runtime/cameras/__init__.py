@@ -37,6 +37,8 @@ def _replay(spec: DepthSpec, arg: str, period_s: float) -> Camera:
 
     if not arg:
         raise CameraError("camera replay needs a path: replay:PATH")
+    if arg.endswith(".bag"):  # librealsense's recording format, read by the d455 camera's reader
+        raise CameraError(f"camera replay:{arg}: .bag recordings play as a camera: use --camera d455:{arg}")
     return ReplayCamera(spec, arg)
 
 

@@ -56,8 +56,10 @@ class Camera(Protocol):
 def check_stream(name: str, width: int, height: int, spec: DepthSpec) -> None:
     """Refuse a stream whose size is not the policy's: the fixed crop would see a different field of view.
 
-    No rescaling on purpose: another resolution (or another D400 model) has other intrinsics, so a
-    pixel-space crop would silently show the policy a scene it was not trained on.
+    For the cameras whose frames carry no intrinsics (hil, replay): another resolution has other
+    intrinsics, so a pixel-space crop would silently show the policy a scene it was not trained on. The d455
+    reader knows its stream's intrinsics and maps any mode onto the policy's view instead
+    (``runtime.preprocess.match_stream``).
     """
     if (width, height) != (spec.stream_width, spec.stream_height):
         raise StreamMismatch(f"camera {name} streams {width}x{height} depth but the policy expects "

@@ -6,9 +6,10 @@ clock. Only a D455 is accepted live: the policy learnt the D455's artifacts.
 
 Playback (``.bag``): real time off, so every recorded frame is delivered, none skipped, as fast as the loop
 asks; a frame's capture time is then the moment it is played (its recorded stamp stays in ``t_device``).
-Any D400-family recording is accepted (the only public one at hand is a D435) with a warning, and its
-recorded stream size must still equal the policy's (``StreamMismatch`` otherwise - no rescaling, see
-``check_stream``).
+Any D400-family recording is accepted (the only public one at hand is a D435) with a warning.
+
+Any depth mode the camera offers (640x480, 848x480, 1280x720, ...) is mapped onto the policy's stream by the
+stream's own intrinsics (``runtime.preprocess.match_stream``): the policy sees the same field of view.
 """
 
 from __future__ import annotations
@@ -19,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.cameras.base import CameraEnded, CameraError, Frame, check_stream
-from runtime.preprocess import DepthSpec
+from runtime.cameras.base import CameraEnded, CameraError, Frame
+from runtime.preprocess import DepthSpec, StreamIntrinsics, match_stream, trained_stream
 
 try:
     import pyrealsense2 as rs
@@ -77,7 +78,12 @@ class D455Camera:
             raise CameraError(f"camera {self.name}: found {model!r}; the live runtime needs a D455")
         stream = profile.get_stream(rs.stream.depth).as_video_stream_profile()
         self.stream_size = (stream.width(), stream.height())
-        check_stream(self.name, *self.stream_size, spec)
+        k = stream.get_intrinsics()
+        self.intrinsics = StreamIntrinsics(k.width, k.height, k.fx, k.fy, k.ppx, k.ppy)
+        self._trained = trained_stream(spec)
+        if self.stream_size != (spec.stream_width, spec.stream_height):
+            print(f"runtime: camera {self.name} streams {k.width}x{k.height}: mapped onto the policy's "
+                  f"{spec.stream_width}x{spec.stream_height} view by its intrinsics", file=sys.stderr)
         self.period_s = 1.0 / stream.fps()
 
     def poll(self, timeout_s: float) -> Frame | None:
@@ -91,7 +97,8 @@ class D455Camera:
         t_receive = time.monotonic()
         depth = frames.get_depth_frame()
         t_capture = t_receive if self.playback else self._to_monotonic(depth, t_receive)
-        return Frame(np.array(depth.get_data(), dtype=np.uint16), self.depth_scale, t_capture, t_receive,
+        raw = match_stream(np.array(depth.get_data(), dtype=np.uint16), self.intrinsics, self._trained)
+        return Frame(raw, self.depth_scale, t_capture, t_receive,
                      int(depth.get_frame_number()), depth.get_timestamp() / 1000.0)
 
     def _playback_stopped(self) -> bool:

@@ -11,6 +11,7 @@ from collections.abc import Callable
 from runtime.franka_driver.backend import Backend, BackendError
 from runtime.franka_driver.server import DriverConfig, DriverServer, check_bind
 from runtime.protocol import DEFAULT_ROBOT, robot_endpoints
+from runtime.realtime import raise_priority
 from runtime.transport import CurveKeys, TransportError
 
 
@@ -51,6 +52,8 @@ def main(argv: list[str] | None = None) -> int:
         config = DriverConfig(bind=args.bind, state_hz=args.state_hz)
         for endpoint in robot_endpoints(args.bind):
             check_bind(endpoint, keys)  # before the (slow, maybe physical) backend comes up
+        raised, granted = raise_priority()  # before the backend: its threads inherit the priority
+        print(f"franka_driver: {'' if raised else 'WARNING '}{granted}", file=sys.stderr, flush=True)
         backend = BACKENDS[args.backend](args)
     except (TransportError, BackendError, ValueError) as exc:
         print(f"franka_driver: {exc}", file=sys.stderr)

@@ -2,13 +2,17 @@ import numpy as np
 import pytest
 
 from runtime.preprocess import (
+    TRAINED_STREAM,
     DepthSpec,
     FrameStack,
     PreprocessError,
+    StreamIntrinsics,
     crop_resize,
+    match_stream,
     normalise,
     preprocess,
     restore_holes,
+    trained_stream,
 )
 
 SPEC = DepthSpec()
@@ -128,3 +132,51 @@ def test_frame_stack_leads_with_the_episodes_first_frame():
     assert stack.push(d)[:, 0, 0].tolist() == [0, 3, 3]
     stack.reset()  # a new episode
     assert stack.push(d)[:, 0, 0].tolist() == [3, 3, 3]
+
+
+
+def _scene(stream: StreamIntrinsics) -> np.ndarray:
+    """One scene seen through ``stream``'s intrinsics, uint16 mm: a tilted table, a box on it (sharp edges)
+    and a hole, each a function of the ray alone, so that every stream mode sees the same scene."""
+    x = (np.arange(stream.width) - stream.cx) / stream.fx
+    y = ((np.arange(stream.height) - stream.cy) / stream.fy)[:, None]
+    depth = 900.0 + 300.0 * y + 200.0 * x
+    depth = np.where((np.abs(x - 0.05) < 0.12) & (np.abs(y + 0.02) < 0.09), 760.0, depth)
+    depth[(np.abs(x + 0.2) < 0.03) & (np.abs(y - 0.1) < 0.03)] = 0  # no data
+    return depth.astype(np.uint16)
+
+
+OTHER_MODES = {
+    # a D455's 1280x720: 848x480's field of view at 1.5x the pixels (pixel centres scale about -0.5)
+    "1280x720": StreamIntrinsics(1280, 720, 424.51 * 1.5, 424.24 * 1.5, 415.71 * 1.5 + 0.25,
+                                 249.80 * 1.5 + 0.25),
+    # the shipped D435 recording's 640x480: another focal length and principal point
+    "640x480": StreamIntrinsics(640, 480, 390.43, 390.43, 331.39, 242.19)}
+
+
+@pytest.mark.parametrize("mode", sorted(OTHER_MODES))
+def test_other_stream_modes_give_the_native_frame_policy_input(mode):
+    spec, other = DepthSpec(), OTHER_MODES[mode]
+    native = trained_stream(spec)
+    want = preprocess(_scene(native), 0.001, spec)
+    got = preprocess(match_stream(_scene(other), other, native), 0.001, spec)
+    # a centred crop by pixels of the other mode: a different field of view
+    top, left = (other.height - native.height) // 2, (other.width - native.width) // 2
+    padded = np.pad(_scene(other), ((max(0, -top),) * 2, (max(0, -left),) * 2))
+    naive = preprocess(padded[max(0, top):max(0, top) + 480, max(0, left):max(0, left) + 848], 0.001, spec)
+    off = (np.abs(got - want) > 0.01).mean()  # > 1.2 cm: only edge pixels may sample the other side
+    assert off < 0.03
+    assert (np.abs(naive - want) > 0.01).mean() > 5 * off  # the comparison can tell a wrong field of view
+
+
+def test_the_native_stream_is_left_untouched():
+    native = trained_stream(DepthSpec())
+    frame = _scene(native)
+    assert native == TRAINED_STREAM and match_stream(frame, native, native) is frame
+
+
+def test_the_trained_stream_is_hil_sims_d455():
+    from hil_sim.camera import Intrinsics
+
+    d455 = Intrinsics()
+    assert TRAINED_STREAM == StreamIntrinsics(d455.width, d455.height, d455.fx, d455.fy, d455.cx, d455.cy)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -14,6 +15,8 @@ import pytest
 from export.__main__ import main as export_main
 from export.check import CheckError, run_check
 from export.graph import INPUT_NAMES, OUTPUT_NAMES, read_metadata
+
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_fixture_is_a_valid_untrained_policy(untrained_student_onnx):
@@ -93,3 +96,32 @@ def test_first_frame_student_exports_one_more_depth_channel(first_frame_student_
     meta = read_metadata(model)
     assert meta.first_frame and meta.input_shapes()["depth"] == [1, 4, 96, 128]
     assert [d.dim_value for d in model.graph.input[0].type.tensor_type.shape.dim] == [1, 4, 96, 128]
+
+
+def _check_cli(*argv: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "export.check", *argv], capture_output=True, text=True,
+                          timeout=300, cwd=REPO)
+
+
+def test_check_on_the_shipped_file_works_on_a_clone_without_its_checkpoint():
+    """The README's command: the checkpoint is not shipped, so parity is skipped in one line, latency kept."""
+    proc = _check_cli("models/student.onnx", "--json", "--repeats", "2", "--threads", "1")
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert report["ort_ms"] > 0 and report["metadata"]["trained"]
+    if report["parity_skipped"]:  # a clone; on the training machine the checkpoint is there: real parity
+        assert report["max_abs_err"] is None and proc.stderr.count("\n") == 1
+        assert proc.stderr.startswith("export.check: parity not checked: ")
+    else:
+        assert report["max_abs_err"] <= 1e-5
+
+
+@pytest.mark.parametrize("content, needle", [(None, "no such policy file"),
+                                             (b"not a model", "not a loadable ONNX model")])
+def test_check_on_a_missing_or_corrupt_file_is_one_error_line(tmp_path, content, needle):
+    path = tmp_path / "student.onnx"
+    if content is not None:
+        path.write_bytes(content)
+    proc = _check_cli(str(path), "--json")
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.count("\n") == 1 and needle in proc.stderr

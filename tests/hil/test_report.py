@@ -40,11 +40,17 @@ def test_rate_not_held(kw):
 
 
 def test_table_and_histogram(tmp_path):
-    rows, cmds = ticks()
+    rows, cmds = ticks(late=(3, 7), missing=(7,))  # a late tick whose command never came is marked too
     doc = report.build(rows, cmds, rate_hz=10.0, usage=report.Usage(1, 2))
-    assert "HELD" in report.table(doc) and "latency_ms" in report.table(doc)
-    report.histogram(rows, cmds, tmp_path / "h.png", title="t")
+    assert "NOT HELD" in report.table(doc) and "latency_ms" in report.table(doc)
+    report.histogram(rows, cmds, tmp_path / "h.png", title="t", rate_hz=10.0, camera_fps=5.0)
     assert (tmp_path / "h.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_the_caption_explains_frame_age_only_when_the_camera_is_slower_than_the_loop():
+    assert report.frame_age_caption(10.0, 15.0) is None and report.frame_age_caption(10.0, None) is None
+    caption = report.frame_age_caption(10.0, 4.96)
+    assert "4.96 fps" in caption and "slower than the loop (10 Hz)" in caption and "two clusters" in caption
 
 
 def test_bad_metrics_file_is_a_report_error(tmp_path):

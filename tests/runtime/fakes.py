@@ -77,6 +77,7 @@ class FakeRobot:
         self.clock, self.q, self.gripper, self.stale_after = clock, np.array(q, float), gripper, stale_after
         self.commands: list[dict] = []
         self.latest: dict | None = None
+        self.address = "fake"
 
     def poll(self, timeout_s: float = 0.0) -> dict | None:
         if self.stale_after is None or self.clock() < self.stale_after:

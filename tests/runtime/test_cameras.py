@@ -11,7 +11,8 @@ from runtime.preprocess import DepthSpec
 from runtime.protocol import Encoder
 from tests.runtime.fakes import free_port_pair
 
-BAG = Path(__file__).resolve().parents[2].parent / "shared/data/realsense_bags/single_depth_color_640x480.bag"
+REPO = Path(__file__).resolve().parents[2]
+BAG = REPO.parent / "shared/data/realsense_bags/single_depth_color_640x480.bag"
 SPEC = DepthSpec()
 
 
@@ -95,25 +96,47 @@ def test_hil_camera_takes_newest_and_refuses_a_wrong_size():
     pub.close()
 
 
-def test_d455_bag_of_another_size_is_refused_naming_both_sizes():
+def test_the_640x480_recording_drives_the_shipped_policy():
+    """The one real recording (a D435, 640x480) through the d455 reader, preprocessing, the shipped file."""
     pytest.importorskip("pyrealsense2")
-    with pytest.raises(StreamMismatch, match="streams 640x480 depth but the policy expects 848x480"):
-        open_camera(f"d455:{BAG}", SPEC)
+    from runtime.policy import Policy
+    from runtime.preprocess import FrameStack, preprocess
+
+    camera = open_camera(f"d455:{BAG}", SPEC)
+    frame = _drain(camera)[0]
+    camera.close()
+    policy = Policy(REPO / "models" / "student.onnx")
+    spec = policy.metadata.preprocess
+    depth = preprocess(frame.depth, frame.depth_scale, spec)
+    assert depth.shape == (spec.out_height, spec.out_width) and (depth == spec.invalid_value).mean() < 0.1
+    stack = FrameStack(policy.metadata.obs_horizon, policy.metadata.first_frame).push(depth)
+    actions = policy(stack, np.zeros(policy.metadata.state_dim, np.float32))
+    assert actions.shape == (policy.metadata.action_horizon, 8) and np.isfinite(actions).all()
 
 
 def test_d455_bag_plays_every_frame_with_device_scale_and_timestamps(capsys):
     pytest.importorskip("pyrealsense2")
-    camera = open_camera(f"d455:{BAG}", DepthSpec(stream_width=640, stream_height=480))
-    assert "D435 recording" in capsys.readouterr().err  # D400 family accepted in playback, with a warning
+    camera = open_camera(f"d455:{BAG}", SPEC)
+    err = capsys.readouterr().err
+    assert "D435 recording" in err  # D400 family accepted in playback, with a warning
+    assert "streams 640x480: mapped onto the policy's 848x480 view by its intrinsics" in err
     got = _drain(camera)
     camera.close()
     assert [f.number for f in got] == [169, 170]  # the recording's own frame counter
+    top, left = SPEC.centred_window()
     for frame in got:
-        assert frame.depth.dtype == np.uint16 and frame.depth.shape == (480, 640)
+        assert frame.depth.dtype == np.uint16 and frame.depth.shape == (480, 848)
         assert frame.depth_scale == pytest.approx(0.001)
-        assert (frame.depth == 0).mean() == pytest.approx(0.067, abs=0.001)
+        crop = frame.depth[top:top + SPEC.crop_height, left:left + SPEC.crop_width]
+        assert (crop == 0).mean() == pytest.approx(0.025, abs=0.01)  # the recording's holes, not its edges
         assert frame.t_capture <= frame.t_receive
     assert got[1].t_device - got[0].t_device == pytest.approx(0.1667, abs=0.002)  # device clock, 6 fps
+
+
+def test_a_bag_given_to_replay_is_pointed_at_the_d455_reader():
+    with pytest.raises(CameraError, match=r"replay:rec.bag: .bag recordings play as a camera: use --camera "
+                                          r"d455:rec.bag"):
+        open_camera("replay:rec.bag", SPEC)
 
 
 def test_d455_missing_recording_is_named():

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tests.runtime import handmade
-from tests.runtime.fakes import READY_Q, FakeWorld
+from tests.runtime.fakes import READY_Q, FakeWorld, free_port_pair
 
 pytestmark = pytest.mark.hil
 RATE = 20.0
@@ -100,7 +100,8 @@ def test_exported_untrained_student_runs(untrained_student_onnx):
     (["--camera", "teleport:x"], 3, "unknown camera 'teleport:x'"),
     (["--camera", "replay:/nonexistent.npz"], 3, "replay:/nonexistent.npz"),
     (["--camera", "hil", "--robot", "tcp://10.1.2.3:7000"], 2, "without CurveZMQ keys"),
-    (["--camera", "hil", "--rate", "-3"], 2, "rate_hz"),
+    (["--camera", "hil", "--rate", "-3"], 2, "--rate must be a positive number of Hz, got -3"),
+    (["--camera", "hil", "--rate", "0"], 2, "--rate must be a positive number of Hz, got 0"),
 ])
 def test_bad_arguments_give_one_clear_line(tmp_path, args, code, match):
     model = handmade.build(tmp_path / "s.onnx")
@@ -110,3 +111,19 @@ def test_bad_arguments_give_one_clear_line(tmp_path, args, code, match):
     assert proc.returncode == code, proc.stderr
     errors = [line for line in proc.stderr.splitlines() if line.startswith("runtime: error")]
     assert len(errors) == 1 and match in errors[0], proc.stderr
+
+
+def test_no_robot_names_the_address_and_the_driver_command_within_seconds(tmp_path):
+    robot = f"tcp://127.0.0.1:{free_port_pair()}"  # nothing serves it
+    with FakeWorld(RATE) as world:
+        start = time.monotonic()
+        model = handmade.build(tmp_path / "s.onnx")
+        proc = subprocess.run([sys.executable, "-m", "runtime", "--model", str(model), "--camera",
+                               f"hil:{world.camera}", "--robot", robot, "--seconds", "1"],
+                              capture_output=True, text=True, timeout=30)
+        took = time.monotonic() - start
+    assert proc.returncode == 4, proc.stderr
+    fatal = [line for line in proc.stderr.splitlines() if "status fatal" in line]
+    assert len(fatal) == 1 and f"no robot state on {robot} within 1 s" in fatal[0]
+    assert f"python -m runtime.franka_driver --backend franka|mujoco --bind {robot}" in fatal[0]
+    assert took < 8.0  # --seconds bounds the wait (the default is 10 s); the rest is start-up

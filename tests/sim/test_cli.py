@@ -149,6 +149,24 @@ def test_the_table_gives_the_closing_interval_only_when_there_is_one() -> None:
     assert "10.0 cm apart horizontally (median; 95 % CI [" in three
 
 
+def test_first_close_offsets_print_as_rounded_centimetres() -> None:
+    closes = first_close([(30, np.array([0.0328, -0.0328, 0.0], dtype=np.float32))])
+    assert closes["offset_cm_mean"] == [3.28, -3.28, 0.0]
+    result = {"per_object": {}, "ci95": [0.0, 1.0], "success_rate": 0.0, "episodes": 1, "policy": "p",
+              "sensor": "clean", "restore": "none", "first_close": closes}
+    assert "[3.28, -3.28, 0.0] cm" in table(result)
+
+
+def test_trainer_help_goes_to_stdout_and_an_unknown_command_is_named() -> None:
+    def trainer(*argv: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "trainer", *argv], cwd=REPO, capture_output=True,
+                              text=True, timeout=60)
+
+    helped, bogus = trainer("--help"), trainer("bogus")
+    assert helped.returncode == 0 and "evaluate" in helped.stdout and helped.stderr == ""
+    assert bogus.returncode == 2 and bogus.stderr.strip().endswith("error: unknown command 'bogus'")
+
+
 @pytest.mark.parametrize("argv,needle", [(["--objects", "dragonfruit"], "unknown object kind 'dragonfruit'"),
                                          (["--policy", "magic"], "unknown policy 'magic'"),
                                          (["--sensor", "fog"], "unknown sensor 'fog'")])
