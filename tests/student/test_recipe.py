@@ -170,3 +170,18 @@ def test_an_oracle_bias_moves_the_facts_it_reads(tmp_path):
     assert np.linalg.norm(policy._bias) == pytest.approx(0.005) and policy._bias[2] == 0
     with pytest.raises(ValueError, match="centimetres"):
         load(f"{ckpt}@half")
+
+
+@pytest.mark.parametrize("mode", ["depth", "privileged"])
+def test_the_student_runs_on_any_device(mode):
+    """Every constant the network makes lives on its inputs' device (the recipe trains on a GPU): here the
+    'meta' device, where a tensor left on the CPU fails the forward."""
+    from trainer.student.config import StudentConfig
+    from trainer.student.model import PerceptionStudent
+
+    net = PerceptionStudent(StudentConfig(perception=mode, width=8, head_dims=(16, 32), state_features=16,
+                                          step_features=16)).to("meta")
+    seen = torch.zeros(2, 3, 96, 128) if mode == "depth" else torch.zeros(2, 12)
+    obs = net.encode(seen.to("meta"), torch.zeros(2, 8, device="meta"))
+    out = net(torch.zeros(2, 16, 8, device="meta"), torch.zeros(2, dtype=torch.int64, device="meta"), obs)
+    assert out.shape == (2, 16, 8) and out.device.type == "meta"

@@ -26,7 +26,8 @@ from trainer.student.perception import HAND_FEATURES, Perception, ResNet18, Spat
 def step_embedding(steps: torch.Tensor, dim: int) -> torch.Tensor:
     """Sinusoidal embedding of diffusion steps [B] -> [B, dim]."""
     half = dim // 2
-    freqs = torch.exp(-math.log(10000.0) * torch.arange(half, dtype=torch.float32) / max(half - 1, 1))
+    k = torch.arange(half, dtype=torch.float32, device=steps.device)
+    freqs = torch.exp(-math.log(10000.0) * k / max(half - 1, 1))
     angles = steps.float()[:, None] * freqs[None, :]
     return torch.cat([angles.sin(), angles.cos()], dim=-1)
 
@@ -120,7 +121,7 @@ def hand_pose(state: torch.Tensor) -> torch.Tensor:
     """Joint state [B, 8] -> [B, 9]: the hand's position (robot base frame, m) and the first two axes of its
     frame, by the Panda's forward kinematics (traced into the graph as constants and trigonometry) of the
     simulator's joint angles, which the students are trained on, made libfranka's."""
-    offset = torch.tensor(HIL_SIM_Q_OFFSET, dtype=state.dtype)
+    offset = torch.tensor(HIL_SIM_Q_OFFSET, dtype=state.dtype, device=state.device)
     pos, rot = tcp_frame(state[:, :7] + offset, torch)
     return torch.cat([pos, rot[..., 0], rot[..., 1]], dim=-1)
 

@@ -58,14 +58,15 @@ class SpatialSoftmax(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         b, _, h, w = x.shape
-        grid = torch.stack([_coords(w).repeat(h), _coords(h).repeat_interleave(w)], dim=-1)  # [h*w, (x, y)]
+        grid = torch.stack([_coords(w, x.device).repeat(h), _coords(h, x.device).repeat_interleave(w)],
+                           dim=-1)  # [h*w, (x, y)]
         attention = torch.softmax(self.keypoints(x).flatten(2), dim=-1)  # [B, K, h*w]
         return (attention @ grid).reshape(b, -1)
 
 
-def _coords(n: int) -> torch.Tensor:
+def _coords(n: int, device: torch.device) -> torch.Tensor:
     """n pixel centres spread over [-1, 1] (float32 arithmetic, which exports as plain constants)."""
-    return torch.arange(n, dtype=torch.float32) * (2.0 / max(n - 1, 1)) - 1.0
+    return torch.arange(n, dtype=torch.float32, device=device) * (2.0 / max(n - 1, 1)) - 1.0
 
 
 class ResNet18(nn.Module):
