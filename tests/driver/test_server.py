@@ -16,6 +16,13 @@ from tests.driver.fake_backend import KinematicArm
 from tests.runtime.fakes import free_port_pair
 
 TIMEOUT = 5.0
+SESSION = "a" * 32
+
+
+def command(enc, q, *, gripper=-1.0, valid_for=0.1, session=SESSION):
+    now = time.monotonic()
+    return enc.encode("command", t_capture=now, q_target=list(map(float, q)), gripper=gripper,
+                      deadline=now + valid_for, session=session)
 
 
 class Harness:
@@ -59,10 +66,9 @@ class Harness:
         self.push.close(0)
         self.ctx.term()
 
-    def send_command(self, q, *, gripper=-1.0, valid_for=0.1):
-        now = time.monotonic()
-        self.push.send_multipart(self.enc.encode("command", t_capture=now, q_target=list(map(float, q)),
-                                                 gripper=gripper, deadline=now + valid_for))
+    def send_command(self, q, *, gripper=-1.0, valid_for=0.1, session=SESSION, enc=None, push=None):
+        (push or self.push).send_multipart(command(enc or self.enc, q, gripper=gripper, valid_for=valid_for,
+                                                   session=session))
 
     def next_kind(self, kind: str, *, timeout=TIMEOUT, where=lambda m: True):
         end = time.monotonic() + timeout
@@ -122,8 +128,8 @@ def test_missing_commands_hold_within_250_ms_and_announce_it():
     ([msgpack.packb({"v": 1, "kind": "command", "seq": 0, "t_send": 0.0}), b""], "bad_message"),
     ([b"x" * 5000, b""], "bad_message"),
     (Encoder().encode("status", code="hello", detail=""), "wrong_kind"),
-    (Encoder().encode("command", t_capture=0.0, q_target=[0.0] * 7, gripper=0.0, deadline=1.0),
-     "stale_command"),
+    (Encoder().encode("command", t_capture=0.0, q_target=[0.0] * 7, gripper=0.0, deadline=1.0,
+                      session=SESSION), "stale_command"),
 ])
 def test_bad_messages_are_answered_with_status_and_the_driver_keeps_serving(frames, code):
     with Harness(KinematicArm()) as h:

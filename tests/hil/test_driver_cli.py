@@ -32,7 +32,7 @@ def test_mujoco_driver_process_serves_state_takes_commands_and_stops_on_sigterm(
         push.send_multipart([b"\xc1", b""])
         now = time.monotonic()
         push.send_multipart(Encoder().encode("command", t_capture=now, q_target=list(log.states[-1].q),
-                                             gripper=-1.0, deadline=now + 0.15))
+                                             gripper=-1.0, deadline=now + 0.15, session="cli-test" * 4))
         log.wait(lambda s: not s.holding, timeout=5, what="the command taken")
         log.wait(lambda s: s.holding and s.fault == "command_timeout", timeout=1, what="hold after expiry")
         assert "bad_message" in log.codes()

@@ -22,6 +22,8 @@ pytestmark = pytest.mark.hil
 HOLD_S = 0.25
 # Two 5 ms driver steps at half the velocity limit, plus tracking slack of the position actuators.
 MAX_STEP = float(DQ_MAX.max() * 0.5 * 0.005 * 2 + 0.01)
+TEST_SENDER = Encoder()
+"""One sender for every test command: the driver's lease holds a session's seq to increase."""
 
 
 def run(sim, model, tmp_path, *, seconds=30.0, rate=10.0):
@@ -187,8 +189,9 @@ def test_malformed_messages_to_the_driver_get_status_and_it_keeps_holding(sim, s
         assert all(s.holding for s in state_log.states if s.t > t0) and sim.driver_error is None
         # A valid command after the garbage is still taken.
         now = time.monotonic()
-        push.send_multipart(Encoder().encode("command", t_capture=now, q_target=list(state_log.states[-1].q),
-                                             gripper=-1.0, deadline=now + 0.15))
+        q = list(state_log.states[-1].q)
+        push.send_multipart(TEST_SENDER.encode("command", t_capture=now, q_target=q, gripper=-1.0,
+                                               deadline=now + 0.15, session="hil-test" * 4))
         state_log.wait(lambda s: not s.holding, timeout=5, what="a valid command taken")
     finally:
         push.close(0)

@@ -11,7 +11,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from runtime.protocol import MAX_HEADER_BYTES, Encoder, Message, ProtocolError, decode
+from runtime.protocol import MAX_HEADER_BYTES, VERSION, Encoder, Message, ProtocolError, decode
 
 EXAMPLES = int(os.environ.get("RUNTIME_FUZZ_EXAMPLES", "200"))
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, suppress_health_check=list(HealthCheck), database=None)
@@ -22,17 +22,18 @@ _keys = st.text(max_size=8) | st.integers(-(2**63), 2**64 - 1)
 _values = st.recursive(_scalars, lambda inner: st.lists(inner, max_size=8)
                        | st.dictionaries(_keys, inner, max_size=6), max_leaves=30)
 _KEYS = ["v", "kind", "seq", "t_send", "t_capture", "frame", "width", "height", "depth_scale", "q", "dq",
-         "gripper", "holding", "fault", "q_target", "deadline", "code", "detail"]
+         "gripper", "holding", "fault", "q_target", "deadline", "code", "detail", "session", "controller"]
 
 
 def _valid() -> list[list[bytes]]:
     enc = Encoder()
     return [
         enc.depth(np.zeros((4, 6), np.uint16), t_capture=1.0, frame_number=3, depth_scale=0.001),
-        enc.encode("command", q_target=[0.1] * 7, gripper=1.0, deadline=2.0, t_capture=1.0),
+        enc.encode("command", q_target=[0.1] * 7, gripper=1.0, deadline=2.0, t_capture=1.0, session="s" * 32),
         enc.encode("status", code="late_tick", detail="x"),
-        [msgpack.packb({"v": 1, "kind": "state", "seq": 0, "t_send": 1.0, "t_capture": 1.0, "q": [0.0] * 7,
-                        "dq": [0.0] * 7, "gripper": 0.04, "holding": False, "fault": ""}), b""],
+        [msgpack.packb({"v": VERSION, "kind": "state", "seq": 0, "t_send": 1.0, "t_capture": 1.0,
+                        "q": [0.0] * 7, "dq": [0.0] * 7, "gripper": 0.04, "holding": False, "fault": "",
+                        "controller": ""}), b""],
     ]
 
 

@@ -80,7 +80,7 @@ def test_newest_keeps_only_the_last_and_survives_garbage():
     pub.send_multipart([b"\xc1not msgpack", b""])
     pub.send_multipart([msgpack.packb({"v": 99}), b""])
     pub.send_multipart(enc.encode("state", t_capture=0.0, q=[0.0] * 7, dq=[0.0] * 7, gripper=0.0,
-                                  holding=False, fault=""))
+                                  holding=False, fault="", controller=""))
     time.sleep(0.1)
     assert sub.poll(0.1) is None
     assert sub.rejected == 2 and "version" in sub.last_error
@@ -122,7 +122,7 @@ def test_robot_state_stays_fresh_when_read_once_per_tick():
         enc = Encoder()
         while not stop.is_set():
             pub.send_multipart(enc.encode("state", t_capture=time.monotonic(), q=[0.0] * 7, dq=[0.0] * 7,
-                                          gripper=0.0, holding=False, fault=""))
+                                          gripper=0.0, holding=False, fault="", controller=""))
             time.sleep(0.005)
 
     threading.Thread(target=publish, daemon=True).start()
