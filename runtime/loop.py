@@ -199,6 +199,7 @@ class Tick:
 _EXIT_CODES = ((CameraError, EXIT_CAMERA), (RobotStalled, EXIT_ROBOT), (NotController, EXIT_ROBOT),
                (ActionOutOfBounds, EXIT_ACTION), (PolicyError, EXIT_POLICY))
 """Fatal error kind -> the runtime's exit status (documented in ``runtime --help``); first match wins."""
+_FATAL = tuple(kind for kind, _ in _EXIT_CODES)
 
 _FRAME_REJECTIONS = {"stale_frame": "stale_frames", "frame_from_future": "future_frames",
                      "camera_frozen": "frozen_frames", "camera_blind": "blind_frames"}
@@ -247,7 +248,7 @@ class ControlLoop:
         except CameraEnded as exc:
             self._report("camera_ended", str(exc))
             return EXIT_OK
-        except (CameraError, RobotStalled, PolicyError) as exc:
+        except _FATAL as exc:
             self._report("fatal", str(exc))
             return next(code for kind, code in _EXIT_CODES if isinstance(exc, kind))
         finally:
@@ -411,7 +412,7 @@ class ControlLoop:
         hostile policy file must not reach the driver, which would only rate-limit it toward the limits."""
         bound = self.config.action_limit * self.policy.metadata.action_scale
         worst = float(np.max(np.abs(chunk[:, :DOF])))
-        if not worst <= bound:
+        if not worst <= bound * (1 + 1e-6):  # float32 outputs: a delta exactly at the bound may round up
             raise ActionOutOfBounds(f"policy output a joint delta of {worst:.4g} rad, beyond the bound "
                                     f"{bound:.4g} rad ({self.config.action_limit:g} x action scale "
                                     f"{self.policy.metadata.action_scale:g}): not executed")

@@ -50,3 +50,14 @@ def test_non_loopback_bind_without_keys_exits_2_with_one_line(tmp_path):
     cmd = [sys.executable, "-m", "runtime.franka_driver", "--backend", "mujoco", "--bind", "tcp://0.0.0.0:5999"]
     done = subprocess.run(cmd, cwd=REPO, env=subprocess_env(), capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "CurveZMQ" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+
+
+def test_curve_keys_without_a_client_allow_list_exit_2_with_one_line(tmp_path):
+    import zmq.auth
+
+    zmq.auth.create_certificates(str(tmp_path), "driver")
+    cmd = [sys.executable, "-m", "runtime.franka_driver", "--backend", "mujoco", "--bind", "tcp://0.0.0.0:5999",
+           "--curve-secret", str(tmp_path / "driver.key_secret")]
+    done = subprocess.run(cmd, cwd=REPO, env=subprocess_env(), capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "--curve-clients" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1

@@ -8,6 +8,7 @@ import os
 
 import msgpack
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -87,3 +88,51 @@ def test_valid_headers_with_bytes_flipped_or_cut(which, flips, cut):
 
 def test_the_seeds_are_valid():
     assert [decode(f).kind for f in VALID] == ["depth", "command", "status", "state"]
+
+
+def _nested(depth: int, container) -> object:
+    value = container()
+    for _ in range(depth):
+        value = [value] if container is list else {"k": value}
+    return value
+
+
+@pytest.mark.parametrize("container", [list, dict])
+@pytest.mark.parametrize("key", _KEYS + ["unknown"])
+def test_deep_nesting_in_any_field_is_refused_with_protocol_error_only(key, container):
+    """A list nested ~1,000 deep in any header field (~1 kB) raised RecursionError out of decode: the error
+    text repr'd it. One message killed the driver, and the same on the camera socket the runtime."""
+    for which in range(len(VALID)):
+        header = msgpack.unpackb(VALID[which][0])
+        header[key] = _nested(1000, container)
+        raw = msgpack.packb(header, use_bin_type=True)
+        try:
+            msg = decode([raw, VALID[which][1]])
+        except ProtocolError as exc:
+            assert len(str(exc)) < 300
+        else:  # a field the kind does not declare: dropped, never handed on
+            assert key not in msg.header
+
+
+@FUZZ
+@given(st.sampled_from(range(len(VALID))), st.sampled_from(_KEYS), st.integers(1, 3000),
+       st.sampled_from([b"\x91", b"\x81\xa1k"]))
+def test_random_deep_nesting(which, key, depth, opener):
+    header = msgpack.unpackb(VALID[which][0])
+    header[key] = 0
+    raw = msgpack.packb(header, use_bin_type=True)
+    at = raw.index(msgpack.packb(key)) + len(msgpack.packb(key))  # nest where the field's value begins
+    _check([raw[:at] + opener * depth + raw[at:], VALID[which][1]])
+
+
+def test_untrusted_values_in_error_text_are_bounded():
+    header = msgpack.unpackb(VALID[1][0]) | {"gripper": "x" * 3000}
+    with pytest.raises(ProtocolError) as refused:
+        decode([msgpack.packb(header), b""])
+    assert len(str(refused.value)) < 300 and "3002 characters" in str(refused.value)
+
+
+@pytest.mark.parametrize("frames", [[10**12, b""], [None, b""], [b"", object()], "ab", None])
+def test_non_byte_frames_are_protocol_errors(frames):
+    with pytest.raises(ProtocolError):
+        decode(frames)
