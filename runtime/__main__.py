@@ -1,8 +1,9 @@
 """``runtime``: run student.onnx on live depth and command the robot at a fixed rate.
 
 Exit status: 0 clean stop (SIGINT/SIGTERM, --seconds reached, recording ended); 2 bad model or arguments;
-3 camera failed or stalled; 4 robot state lost; 5 policy kept producing non-finite actions. Every exit
-after the loop has started leaves the arm with a hold command.
+3 camera failed, stalled or sending unusable frames; 4 robot state lost or the arm controlled by another
+session; 5 policy kept producing non-finite actions; 6 policy output a joint delta beyond its bound. Every
+exit after the loop has started leaves the arm with a hold command.
 """
 
 from __future__ import annotations

@@ -12,15 +12,25 @@ Actions. One inference yields ``action_horizon`` actions; the loop executes ``ex
 per tick, as ``q_target = q_measured + delta`` (paper eq. 1) with the gripper thresholded at 0. An action
 whose tick was skipped is dropped, not sent late.
 
-Faults. No usable frame for one control period past the expected one (stall), stale robot state or a
-non-finite action: the loop commands hold (the joint positions at that moment, gripper
-unchanged), reports a status, and resumes when the cause clears - or gives up after a grace time and
-exits non-zero, still holding. SIGINT/SIGTERM end the loop with a final hold command.
+Faults. No usable frame for one control period past the expected one (stall), stale robot state, another
+session controlling the arm or a non-finite action: the loop commands hold (the joint positions at that
+moment, gripper unchanged), reports a status, and resumes when the cause clears - or gives up after a grace
+time and exits non-zero, still holding. SIGINT/SIGTERM end the loop with a final hold command.
+
+Input checks. A frame is not used when it arrived too old, is stamped in the future, does not advance the
+frame counter, or is blind (too few pixels that are neither 0 = no data nor 65535 = saturated). It counts as
+no frame, so the stall rule holds the arm; the hold's status names the last rejection (``stale_frame``,
+``frame_from_future``, ``camera_frozen``, ``camera_blind``) instead of ``camera_stalled``.
+
+Output check. A joint delta beyond ``action_limit`` times the metadata's action scale is no policy output
+the training ever produced (its actions were clipped to one action scale): the chunk is not executed, the
+arm holds and the runtime exits ``EXIT_ACTION`` at once.
 """
 
 from __future__ import annotations
 
 import json
+import secrets
 import sys
 import threading
 import time
@@ -35,15 +45,25 @@ import zmq
 from runtime.cameras import Camera, CameraEnded, CameraError, CameraStalled, Frame
 from runtime.policy import NanActionError, Policy, PolicyError
 from runtime.preprocess import RESTORE_METHODS, FrameStack, preprocess
-from runtime.protocol import DEFAULT_ROBOT, DOF, Encoder, Message, robot_endpoints
+from runtime.protocol import DEFAULT_ROBOT, DOF, Encoder, Message, robot_endpoints, session_tag
 from runtime.transport import CurveKeys, Newest, connect, send
 
-EXIT_OK, EXIT_CAMERA, EXIT_ROBOT, EXIT_POLICY = 0, 3, 4, 5
+EXIT_OK, EXIT_CAMERA, EXIT_ROBOT, EXIT_POLICY, EXIT_ACTION = 0, 3, 4, 5, 6
 STATE_QUEUE = 4096
+SATURATED = np.iinfo(np.uint16).max
+"""Depth code of a saturated pixel; 0 is "no data"."""
 
 
 class RobotStalled(RuntimeError):
     """No fresh robot state for longer than the loop tolerates (status ``robot_stalled``)."""
+
+
+class NotController(RuntimeError):
+    """The driver kept executing another session's commands (status ``not_controller``)."""
+
+
+class ActionOutOfBounds(PolicyError):
+    """The policy returned a joint delta beyond the bound its metadata allows (``EXIT_ACTION``)."""
 
 
 @dataclass(frozen=True)
@@ -76,14 +96,27 @@ class LoopConfig:
     restore: str = "none"
     """Hole restoration before the policy (``runtime.preprocess.RESTORE_METHODS``); ``inpaint`` is for a
     policy trained on clean depth."""
+    min_valid_fraction: float = 0.2
+    """A frame with a smaller share of valid pixels (neither 0 nor 65535) is blind and not used. A D4xx frame
+    has ~4 % holes, the stereo model's up to ~30 %; a covered or dead sensor has ~0 %."""
+    max_future_s: float = 0.01
+    """A frame stamped as captured more than this after it arrived has a wrong clock and is not used."""
+    controller_give_up_s: float = 2.0
+    """Hold this long while the driver executes another session's commands before exiting (longer than the
+    driver's 1 s lease, so the lease of a runtime that just exited can lapse)."""
+    action_limit: float = 2.0
+    """Largest joint delta accepted from the policy, in multiples of its metadata's action scale. Training
+    clipped actions to one action scale; twice that leaves room for un-clipped diffusion samples."""
 
     def __post_init__(self) -> None:
         for name in ("rate_hz", "validity_periods", "startup_timeout_s", "camera_give_up_s", "robot_stale_s",
-                     "robot_give_up_s", "policy_give_up_s", "max_frame_age_s"):
+                     "robot_give_up_s", "policy_give_up_s", "max_frame_age_s", "max_future_s",
+                     "controller_give_up_s", "action_limit"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"loop setting {name} must be positive, got {getattr(self, name)}")
-        if not 0 < self.work_budget < 1:
-            raise ValueError(f"loop setting work_budget must be in (0, 1), got {self.work_budget}")
+        for name in ("work_budget", "min_valid_fraction"):
+            if not 0 < getattr(self, name) < 1:
+                raise ValueError(f"loop setting {name} must be in (0, 1), got {getattr(self, name)}")
         if self.seconds is not None and not self.seconds > 0:
             raise ValueError(f"loop setting seconds must be positive, got {self.seconds}")
         if self.restore not in RESTORE_METHODS:
@@ -95,7 +128,11 @@ class LoopConfig:
 
 
 class RobotLink:
-    """The driver seen from the runtime: newest ``state`` (SUB) and ``command`` out (PUSH)."""
+    """The driver seen from the runtime: newest ``state`` (SUB) and ``command`` out (PUSH).
+
+    Its commands carry a secret ``session`` token drawn per process: the driver executes one session at a
+    time, and states name the controlling session by its public ``tag``, so the loop can tell whether the arm
+    is its own."""
 
     def __init__(self, address: str = DEFAULT_ROBOT, *, keys: CurveKeys | None = None,
                  ctx: zmq.Context | None = None) -> None:
@@ -106,8 +143,16 @@ class RobotLink:
         self._state = Newest(connect(ctx, zmq.SUB, state_ep, keys=keys, queue=STATE_QUEUE), "state")
         self._cmd = connect(ctx, zmq.PUSH, command_ep, keys=keys)
         self._enc = Encoder()
+        self._session = secrets.token_hex(16)
+        self.tag = session_tag(self._session)
+        """How states name this link's session when it controls the arm."""
         self.latest: Message | None = None
         self.dropped = 0
+
+    @property
+    def rejected(self) -> int:
+        """Malformed messages refused on the state socket."""
+        return self._state.rejected
 
     def poll(self, timeout_s: float = 0.0) -> Message | None:
         got = self._state.poll(timeout_s)
@@ -120,7 +165,8 @@ class RobotLink:
         seq = self._enc.seq
         now = time.monotonic()
         frames = self._enc.encode("command", q_target=[float(v) for v in q_target], gripper=float(gripper),
-                                  deadline=now + validity_s, t_capture=float(t_capture))
+                                  deadline=now + validity_s, t_capture=float(t_capture),
+                                  session=self._session)
         if not send(self._cmd, frames):
             self.dropped += 1
         return seq
@@ -151,12 +197,19 @@ class Tick:
     status: str | None = None
 
 
-_EXIT_CODES = ((CameraError, EXIT_CAMERA), (RobotStalled, EXIT_ROBOT), (PolicyError, EXIT_POLICY))
-"""Fatal error kind -> the runtime's exit status (documented in ``runtime --help``)."""
+_EXIT_CODES = ((CameraError, EXIT_CAMERA), (RobotStalled, EXIT_ROBOT), (NotController, EXIT_ROBOT),
+               (ActionOutOfBounds, EXIT_ACTION), (PolicyError, EXIT_POLICY))
+"""Fatal error kind -> the runtime's exit status (documented in ``runtime --help``); first match wins."""
+_FATAL = tuple(kind for kind, _ in _EXIT_CODES)
 
+_FRAME_REJECTIONS = {"stale_frame": "stale_frames", "frame_from_future": "future_frames",
+                     "camera_frozen": "frozen_frames", "camera_blind": "blind_frames"}
+"""Frame rejection code -> its counter in ``ControlLoop.counts``."""
 # fault code -> (LoopConfig field with its grace time, error raised when it is exceeded)
 _GIVE_UP = {"camera_stalled": ("camera_give_up_s", CameraStalled),
+            **{code: ("camera_give_up_s", CameraStalled) for code in _FRAME_REJECTIONS},
             "robot_stalled": ("robot_give_up_s", RobotStalled),
+            "not_controller": ("controller_give_up_s", NotController),
             "nan_action": ("policy_give_up_s", PolicyError)}
 
 
@@ -171,12 +224,15 @@ class ControlLoop:
         self.stop = stop or threading.Event()
         self.spec = policy.metadata.preprocess
         self.stack = FrameStack(policy.metadata.obs_horizon, policy.metadata.first_frame)
-        self.counts = {"ticks": 0, "late": 0, "skipped": 0, "stale_frames": 0, "nan_actions": 0}
+        self.counts = {"ticks": 0, "late": 0, "skipped": 0, "nan_actions": 0, "rejected_messages": 0,
+                       **dict.fromkeys(_FRAME_REJECTIONS.values(), 0)}
         self.faults: dict[str, float] = {}
         """Active fault code -> monotonic time it began."""
         self._chunk: np.ndarray | None = None
         self._chunk_tick = 0
         self._frame: Frame | None = None
+        self._rejection: tuple[str, str] | None = None
+        """Why the newest frame was not used (code, detail); None once a frame is taken."""
         self._used_frame = -1
         self._gripper: float | None = None
         self._hold_q: np.ndarray | None = None
@@ -193,11 +249,12 @@ class ControlLoop:
         except CameraEnded as exc:
             self._report("camera_ended", str(exc))
             return EXIT_OK
-        except (CameraError, RobotStalled, PolicyError) as exc:
+        except _FATAL as exc:
             self._report("fatal", str(exc))
             return next(code for kind, code in _EXIT_CODES if isinstance(exc, kind))
         finally:
             self._final_hold()
+            self.counts["rejected_messages"] = self.robot.rejected + getattr(self.camera, "rejected", 0)
 
     def _startup(self) -> None:
         """First frames (a few, so a measuring camera knows its period) and the first robot state."""
@@ -205,8 +262,9 @@ class ControlLoop:
         end = self.clock() + self.config.startup_timeout_s
         while self._frame is None and not self.stop.is_set():
             if self.clock() > end:
-                raise CameraStalled(f"camera {self.camera.name}: no frame within "
-                                    f"{self.config.startup_timeout_s} s of start")
+                why = f" (last refused: {': '.join(self._rejection)})" if self._rejection else ""
+                raise CameraStalled(f"camera {self.camera.name}: no usable frame within "
+                                    f"{self.config.startup_timeout_s} s of start{why}")
             self._take(self.camera.poll(0.05))
         settle = self.clock() + 4 * self.camera.period_s
         while self.clock() < settle and not self.stop.is_set():
@@ -247,8 +305,7 @@ class ControlLoop:
         frame = self._await_frame(self._cutoff(tick.deadline))
         state, problems = self._robot_state()
         if frame is None:
-            problems["camera_stalled"] = (f"no frame from {self.camera.name} for "
-                                          f"{self.clock() - self._frame.t_receive:.3f} s")
+            problems.update([self._camera_problem()])
         elif not problems:
             tick.t_capture, tick.t_receive, tick.frame = frame.t_capture, frame.t_receive, frame.number
             depth = preprocess(frame.depth, frame.depth_scale, self.spec, restore=self.config.restore)
@@ -275,7 +332,7 @@ class ControlLoop:
             now = self.clock()
             stalls_at = self._frame.t_receive + self.camera.period_s + self.config.period
             if now > stalls_at:  # one control period past the frame that was due
-                if now >= cutoff or "camera_stalled" not in self.faults:
+                if now >= cutoff or self._camera_problem()[0] not in self.faults:
                     return None
                 self._take(self.camera.poll(cutoff - now))
                 continue
@@ -294,13 +351,38 @@ class ControlLoop:
         return self._frame
 
     def _take(self, frame: Frame | None) -> None:
-        """Accept a polled frame unless it was already too old when it arrived."""
+        """Accept a polled frame unless the input checks refuse it (then remember why)."""
         if frame is None:
             return
-        if frame.t_receive - frame.t_capture > self.config.max_frame_age_s:
-            self.counts["stale_frames"] += 1
-            return
-        self._frame = frame
+        self._rejection = self._frame_problem(frame)
+        if self._rejection is None:
+            self._frame = frame
+        else:
+            self.counts[_FRAME_REJECTIONS[self._rejection[0]]] += 1
+
+    def _frame_problem(self, frame: Frame) -> tuple[str, str] | None:
+        age = frame.t_receive - frame.t_capture
+        if age > self.config.max_frame_age_s:
+            return "stale_frame", f"frame {frame.number} arrived {1e3 * age:.0f} ms after its capture"
+        if -age > self.config.max_future_s:
+            return "frame_from_future", (f"frame {frame.number} is stamped {-1e3 * age:.0f} ms after it "
+                                         "arrived: the camera's clock is wrong")
+        if self._frame is not None and frame.number <= self._frame.number:
+            return "camera_frozen", f"frame number {frame.number} does not advance past {self._frame.number}"
+        valid = _valid_fraction(frame.depth)
+        if valid < self.config.min_valid_fraction:
+            return "camera_blind", (f"frame {frame.number} has {100 * valid:.1f} % valid pixels (at least "
+                                    f"{100 * self.config.min_valid_fraction:g} % needed)")
+        return None
+
+    def _camera_problem(self) -> tuple[str, str]:
+        """Why no usable frame came: the last refused frame's reason, else a plain stall."""
+        if self._rejection is not None:
+            return self._rejection
+        refused = getattr(self.camera, "rejected", 0)
+        return "camera_stalled", (f"no frame from {self.camera.name} for "
+                                  f"{self.clock() - self._frame.t_receive:.3f} s"
+                                  + (f" ({refused} malformed messages refused so far)" if refused else ""))
 
     def _robot_state(self) -> tuple[np.ndarray | None, dict[str, str]]:
         """[q (7), gripper opening] from the newest robot state, or the problems that make it unusable."""
@@ -310,19 +392,34 @@ class ControlLoop:
         if state["fault"] != self._driver_fault:  # the driver's own safety verdicts: reported, not acted on
             self._driver_fault = state["fault"]
             self._report("driver", state["fault"] or "fault cleared")
+        if state["controller"] not in ("", self.robot.tag):  # our commands are being refused
+            return None, {"not_controller": f"the driver executes session {state['controller']}, not this "
+                                            f"runtime's ({self.robot.tag}): another process holds the arm"}
         q = np.asarray(state["q"]) + self.policy.metadata.joint_offset_rad  # the angles it was trained on
         return np.array([*q, state["gripper"]], dtype=np.float32), {}
 
     def _infer(self, obs: np.ndarray, state: np.ndarray, tick: Tick) -> dict[str, str]:
         self._chunk = None
         try:
-            self._chunk = self.policy(obs, state)
+            chunk = self.policy(obs, state)
         except NanActionError as exc:
             self.counts["nan_actions"] += 1
             return {"nan_action": str(exc)}
+        self._check_actions(chunk)
+        self._chunk = chunk
         tick.t_inference = self.clock()
         self._chunk_tick = tick.tick
         return {}
+
+    def _check_actions(self, chunk: np.ndarray) -> None:
+        """``ActionOutOfBounds`` when a joint delta exceeds ``action_limit`` action scales: a broken or
+        hostile policy file must not reach the driver, which would only rate-limit it toward the limits."""
+        bound = self.config.action_limit * self.policy.metadata.action_scale
+        worst = float(np.max(np.abs(chunk[:, :DOF])))
+        if not worst <= bound * (1 + 1e-6):  # float32 outputs: a delta exactly at the bound may round up
+            raise ActionOutOfBounds(f"policy output a joint delta of {worst:.4g} rad, beyond the bound "
+                                    f"{bound:.4g} rad ({self.config.action_limit:g} x action scale "
+                                    f"{self.policy.metadata.action_scale:g}): not executed")
 
     def _act(self, tick: Tick, action: np.ndarray) -> Tick:
         self._hold_q = None
@@ -393,6 +490,11 @@ class ControlLoop:
         self.counts["skipped"] += tick.skipped
         if self.metrics is not None:
             self.metrics.write(json.dumps(_jsonable(tick.__dict__)) + "\n")
+
+
+def _valid_fraction(depth: np.ndarray) -> float:
+    """Share of pixels that carry a measurement: neither 0 (no data) nor saturated."""
+    return float(np.count_nonzero((depth > 0) & (depth < SATURATED))) / max(depth.size, 1)
 
 
 def _jsonable(d: dict[str, Any]) -> dict[str, Any]:

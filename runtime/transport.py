@@ -173,9 +173,9 @@ class Newest:
             t_receive = time.monotonic()
             try:
                 msg = decode(frames)
-            except ProtocolError as exc:
+            except Exception as exc:  # decode raises only ProtocolError; anything else costs one message too
                 self.rejected += 1
-                self.last_error = str(exc)
+                self.last_error = str(exc)[:200] if isinstance(exc, ProtocolError) else type(exc).__name__
                 continue
             if msg.kind != self.kind:
                 self.others.append(msg)

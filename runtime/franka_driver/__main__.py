@@ -9,7 +9,7 @@ import threading
 from collections.abc import Callable
 
 from runtime.franka_driver.backend import Backend, BackendError
-from runtime.franka_driver.server import DriverConfig, DriverServer, check_bind
+from runtime.franka_driver.server import DriverConfig, DriverServer, allowed_clients, check_bind
 from runtime.protocol import DEFAULT_ROBOT, robot_endpoints
 from runtime.realtime import raise_priority
 from runtime.transport import CurveKeys, TransportError
@@ -37,6 +37,9 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--state-hz", type=float, default=DriverConfig.state_hz,
                    help="control-step and state-publish rate, 100..1000 Hz")
     p.add_argument("--curve-secret", help="CurveZMQ .key_secret file; required for a non-loopback --bind")
+    p.add_argument("--curve-clients", metavar="DIR",
+                   help="folder of the CurveZMQ public keys (*.key) allowed to connect; required with "
+                        "--curve-secret")
     p.add_argument("--robot-host", default="172.16.0.2", help="franka backend: the robot's FCI address")
     p.add_argument("--no-realtime", action="store_true", help="franka backend: do not enforce an RT kernel")
     return p.parse_args(argv)
@@ -49,6 +52,9 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     try:
         keys = CurveKeys.from_files(args.curve_secret) if args.curve_secret else None
+        if keys is not None and args.curve_clients is None:
+            raise TransportError("--curve-secret needs --curve-clients DIR, the allow-list of client keys")
+        clients = allowed_clients(args.curve_clients) if args.curve_clients else None
         config = DriverConfig(bind=args.bind, state_hz=args.state_hz)
         for endpoint in robot_endpoints(args.bind):
             check_bind(endpoint, keys)  # before the (slow, maybe physical) backend comes up
@@ -59,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"franka_driver: {exc}", file=sys.stderr)
         return 2
     try:
-        with DriverServer(backend, config, keys=keys) as server:
+        with DriverServer(backend, config, keys=keys, clients=clients) as server:
             print(f"franka_driver: {args.backend} backend serving state on {args.bind} at "
                   f"{config.state_hz:g} Hz", file=sys.stderr, flush=True)
             server.serve(stop)

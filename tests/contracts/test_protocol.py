@@ -14,7 +14,7 @@ from runtime.protocol import (
 
 
 def _command(enc: Encoder, **over):
-    fields = dict(q_target=[0.1] * 7, gripper=1.0, deadline=5.0, t_capture=1.0) | over
+    fields = dict(q_target=[0.1] * 7, gripper=1.0, deadline=5.0, t_capture=1.0, session="s" * 32) | over
     return enc.encode("command", **fields)
 
 

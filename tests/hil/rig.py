@@ -25,6 +25,7 @@ class Sample:
     q: np.ndarray
     holding: bool
     fault: str
+    controller: str = ""
 
 
 @dataclass
@@ -49,7 +50,8 @@ class StateLog:
             if sub.poll(50):
                 msg, t = decode(sub.recv_multipart()), time.monotonic()
                 if msg.kind == "state":
-                    self.states.append(Sample(t, np.array(msg["q"]), msg["holding"], msg["fault"]))
+                    self.states.append(Sample(t, np.array(msg["q"]), msg["holding"], msg["fault"],
+                                              msg["controller"]))
                 else:
                     self.statuses.append((t, msg["code"], msg["detail"]))
         sub.close(0)

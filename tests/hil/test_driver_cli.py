@@ -32,7 +32,7 @@ def test_mujoco_driver_process_serves_state_takes_commands_and_stops_on_sigterm(
         push.send_multipart([b"\xc1", b""])
         now = time.monotonic()
         push.send_multipart(Encoder().encode("command", t_capture=now, q_target=list(log.states[-1].q),
-                                             gripper=-1.0, deadline=now + 0.15))
+                                             gripper=-1.0, deadline=now + 0.15, session="cli-test" * 4))
         log.wait(lambda s: not s.holding, timeout=5, what="the command taken")
         log.wait(lambda s: s.holding and s.fault == "command_timeout", timeout=1, what="hold after expiry")
         assert "bad_message" in log.codes()
@@ -50,3 +50,14 @@ def test_non_loopback_bind_without_keys_exits_2_with_one_line(tmp_path):
     cmd = [sys.executable, "-m", "runtime.franka_driver", "--backend", "mujoco", "--bind", "tcp://0.0.0.0:5999"]
     done = subprocess.run(cmd, cwd=REPO, env=subprocess_env(), capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "CurveZMQ" in done.stderr and len(done.stderr.strip().splitlines()) == 1
+
+
+def test_curve_keys_without_a_client_allow_list_exit_2_with_one_line(tmp_path):
+    import zmq.auth
+
+    zmq.auth.create_certificates(str(tmp_path), "driver")
+    cmd = [sys.executable, "-m", "runtime.franka_driver", "--backend", "mujoco", "--bind", "tcp://0.0.0.0:5999",
+           "--curve-secret", str(tmp_path / "driver.key_secret")]
+    done = subprocess.run(cmd, cwd=REPO, env=subprocess_env(), capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "--curve-clients" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1

@@ -22,6 +22,8 @@ pytestmark = pytest.mark.hil
 HOLD_S = 0.25
 # Two 5 ms driver steps at half the velocity limit, plus tracking slack of the position actuators.
 MAX_STEP = float(DQ_MAX.max() * 0.5 * 0.005 * 2 + 0.01)
+TEST_SENDER = Encoder()
+"""One sender for every test command: the driver's lease holds a session's seq to increase."""
 
 
 def run(sim, model, tmp_path, *, seconds=30.0, rate=10.0):
@@ -166,7 +168,42 @@ def test_inference_slower_than_period_never_jumps(sim, state_log, handmade_model
         stop(proc)
 
 
+def _nested(depth: int = 1000) -> list:
+    value: list = []
+    for _ in range(depth):
+        value = [value]
+    return value
+
+
+def test_a_second_process_cannot_move_the_arm_while_the_runtime_runs(sim, state_log, handmade_model,
+                                                                     tmp_path):
+    """While the runtime commanded the arm, a second local process moved joint 0 by 0.5 rad unnoticed."""
+    proc = run(sim, handmade_model, tmp_path)
+    ctx = zmq.Context()
+    push = ctx.socket(zmq.PUSH)
+    push.connect(robot_endpoints(sim.config.robot)[1])
+    try:
+        state_log.moving_for(1.0)
+        refused_before = sim.driver.rejected["not_controller"]
+        t0, q0 = time.monotonic(), state_log.states[-1].q.copy()
+        target = list(q0 - np.eye(7)[0] * 0.5)  # joint 0 0.5 rad against the runtime's own motion (+)
+        while time.monotonic() < t0 + 1.0:
+            now = time.monotonic()
+            push.send_multipart(TEST_SENDER.encode("command", t_capture=now, q_target=target, gripper=-1.0,
+                                                   deadline=now + 0.15, session="intruder" * 4))
+            time.sleep(0.01)
+        q = np.array([s.q[0] for s in state_log.states if s.t >= t0])
+        assert np.diff(q).min() > -1e-3, "joint 0 moved toward the intruder's target"
+        assert sim.driver.rejected["not_controller"] > refused_before + 50
+        assert proc.poll() is None and "not_controller" in state_log.codes(t0)
+    finally:
+        push.close(0)
+        ctx.term()
+        stop(proc)
+
+
 @pytest.mark.parametrize("frames, code", [
+    ([msgpack.packb({"v": 2, "kind": "command", "seq": _nested()}), b""], "bad_message"),
     ([b"\x93\x01", b""], "bad_message"),
     ([msgpack.packb({"v": 2, "kind": "command", "seq": 0, "t_send": 0.0}), b""], "bad_message"),
     ([b"\x80" + b"x" * 8000, b""], "bad_message"),
@@ -177,7 +214,8 @@ def test_malformed_messages_to_the_driver_get_status_and_it_keeps_holding(sim, s
     push = ctx.socket(zmq.PUSH)
     push.connect(robot_endpoints(sim.config.robot)[1])
     try:
-        state_log.wait(lambda s: s.holding, timeout=5, what="holding (no runtime left)")
+        # no runtime left, and its lease lapsed: the test's command below may take the arm
+        state_log.wait(lambda s: s.holding and not s.controller, timeout=5, what="holding, no controller")
         t0 = time.monotonic()
         push.send_multipart(frames)
         push.send_multipart([b"y" * 1_000_000, b""])  # oversized: dropped by the transport, silently
@@ -187,8 +225,9 @@ def test_malformed_messages_to_the_driver_get_status_and_it_keeps_holding(sim, s
         assert all(s.holding for s in state_log.states if s.t > t0) and sim.driver_error is None
         # A valid command after the garbage is still taken.
         now = time.monotonic()
-        push.send_multipart(Encoder().encode("command", t_capture=now, q_target=list(state_log.states[-1].q),
-                                             gripper=-1.0, deadline=now + 0.15))
+        q = list(state_log.states[-1].q)
+        push.send_multipart(TEST_SENDER.encode("command", t_capture=now, q_target=q, gripper=-1.0,
+                                               deadline=now + 0.15, session="hil-test" * 4))
         state_log.wait(lambda s: not s.holding, timeout=5, what="a valid command taken")
     finally:
         push.close(0)

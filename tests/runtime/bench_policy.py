@@ -57,7 +57,7 @@ def _driver(address: str, stop) -> None:
     while not stop.is_set():
         time.sleep(max(0.0, start + i / 200 - time.monotonic()))
         pub.send_multipart(enc.encode("state", t_capture=time.monotonic(), q=[0.0] * 7, dq=[0.0] * 7,
-                                      gripper=0.04, holding=False, fault=""))
+                                      gripper=0.04, holding=False, fault="", controller=""))
         i += 1
 
 

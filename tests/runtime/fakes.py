@@ -78,10 +78,15 @@ class FakeRobot:
         self.commands: list[dict] = []
         self.latest: dict | None = None
         self.address = "fake"
+        self.tag = "fake-runtime"
+        self.controller = ""
+        """The session tag states carry: "" (none yet), ``tag`` or another's (the arm taken)."""
+        self.rejected = 0
 
     def poll(self, timeout_s: float = 0.0) -> dict | None:
         if self.stale_after is None or self.clock() < self.stale_after:
-            self.latest = {"q": list(self.q), "gripper": self.gripper, "t_capture": self.clock(), "fault": ""}
+            self.latest = {"q": list(self.q), "gripper": self.gripper, "t_capture": self.clock(), "fault": "",
+                           "controller": self.controller}
         return self.latest
 
     def command(self, q_target, gripper, *, validity_s, t_capture) -> int:
@@ -97,7 +102,8 @@ class FakePolicy:
 
     def __init__(self, clock: VirtualClock, *, delay: float = 0.005,
                  nan_calls: set[int] | frozenset = frozenset(), **meta) -> None:
-        self.clock, self.metadata = clock, metadata(**meta)
+        # joint 0 encodes the action index, up to 16 * DELTA: an action scale that bounds it (output check)
+        self.clock, self.metadata = clock, metadata(**{"action_scale": 0.1, **meta})
         self.delay, self.nan_calls = delay, nan_calls
         self.calls = 0
         self.states: list[np.ndarray] = []
@@ -178,7 +184,7 @@ class FakeWorld:
         pull.bind(command_ep)
         while not self.stop.is_set():
             pub.send_multipart(enc.encode("state", t_capture=time.monotonic(), q=list(READY_Q), dq=[0.0] * 7,
-                                          gripper=0.08, holding=False, fault=""))
+                                          gripper=0.08, holding=False, fault="", controller=""))
             if pull.poll(5):
                 while pull.poll(0):
                     msg = decode(pull.recv_multipart())

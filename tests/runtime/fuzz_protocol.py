@@ -2,8 +2,9 @@
 
     python -m tests.runtime.fuzz_protocol --count 100000 --seed 0
 
-Same four input families as test_protocol_fuzz.py, drawn with a seeded numpy Generator. Prints how many
-inputs were decoded, refused with ProtocolError, or raised anything else (a bug), with the first few.
+Same five input families as test_protocol_fuzz.py (random frames, random msgpack, one field of a valid message
+changed, bytes flipped or cut, a field nested 1..3000 deep), drawn with a seeded numpy Generator. Prints how
+many inputs were decoded, refused with ProtocolError, or raised anything else (a bug), with the first few.
 """
 
 from __future__ import annotations
@@ -33,8 +34,21 @@ def _key(rng: np.random.Generator) -> str | int:
     return str(rng.integers(0, 99)) if rng.integers(2) else int(rng.integers(0, 99))
 
 
+def _nested(rng: np.random.Generator) -> list:
+    """A valid message with one field's value nested 1..3000 deep in lists or maps (~1 kB at 1,000)."""
+    seed = VALID[rng.integers(len(VALID))]
+    key = msgpack.packb(_KEYS[rng.integers(len(_KEYS))])
+    header = msgpack.unpackb(seed[0]) | {msgpack.unpackb(key): 0}
+    raw = msgpack.packb(header, use_bin_type=True)
+    at = raw.index(key) + len(key)
+    opener = b"\x91" if rng.integers(2) else b"\x81\xa1k"
+    return [raw[:at] + opener * int(rng.integers(1, 3001)) + raw[at:], seed[1]]
+
+
 def _input(rng: np.random.Generator) -> list:
-    family = rng.integers(4)
+    family = rng.integers(5)
+    if family == 4:
+        return _nested(rng)
     if family == 0:
         return [rng.bytes(int(rng.integers(0, 64))) for _ in range(rng.integers(0, 4))]
     if family == 1:
@@ -75,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
             bugs.setdefault(name, frames)
     print(dict(outcome))
     for name, frames in list(bugs.items())[:5]:
-        print("BUG", name, "header", msgpack.unpackb(frames[0], strict_map_key=False) if frames else frames)
+        print("BUG", name, "header of", len(frames[0]) if frames else 0, "bytes")
     return 1 if outcome["crashed"] else 0
 
 

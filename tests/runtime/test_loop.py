@@ -8,7 +8,7 @@ import threading
 import numpy as np
 import pytest
 
-from runtime.loop import EXIT_CAMERA, EXIT_OK, EXIT_POLICY, EXIT_ROBOT, ControlLoop, LoopConfig
+from runtime.loop import EXIT_ACTION, EXIT_CAMERA, EXIT_OK, EXIT_POLICY, EXIT_ROBOT, ControlLoop, LoopConfig
 from tests.runtime.fakes import DELTA, READY_Q, FakeCamera, FakePolicy, FakeRobot, VirtualClock
 
 P = 0.1  # 10 Hz, as deployed; the clock is virtual, so long runs cost nothing
@@ -215,3 +215,102 @@ def test_restore_option_decides_whether_holes_reach_the_policy(restore, holes_re
 def test_unknown_restore_is_a_config_error():
     with pytest.raises(ValueError, match="restore must be one of"):
         LoopConfig(restore="median")
+
+
+class _TurnsBad(FakeCamera):
+    """A camera whose frames from ``after`` on are spoilt by ``spoil(frame)``."""
+
+    def __init__(self, clock, period_s, *, after: int = 20, spoil=None, **kw) -> None:
+        super().__init__(clock, period_s, **kw)
+        self.after, self.spoil = after, spoil
+
+    def poll(self, timeout_s):
+        frame = super().poll(timeout_s)
+        return self.spoil(frame) if frame is not None and frame.number >= self.after else frame
+
+
+def _spoilt(spoil):
+    return lambda c: _TurnsBad(c, P, spoil=spoil)
+
+
+@pytest.mark.parametrize("name, spoil, code, counter", [
+    ("blind", lambda f: dataclasses.replace(f, depth=np.zeros_like(f.depth)), "camera_blind", "blind_frames"),
+    ("saturated", lambda f: dataclasses.replace(f, depth=np.full_like(f.depth, 65535)), "camera_blind",
+     "blind_frames"),
+    ("frozen counter", lambda f: dataclasses.replace(f, number=19), "camera_frozen", "frozen_frames"),
+    ("capture in the future", lambda f: dataclasses.replace(f, t_capture=f.t_receive + 10.0),
+     "frame_from_future", "future_frames"),
+])
+def test_unusable_frames_never_reach_the_policy_the_arm_holds_with_a_named_status(name, spoil, code, counter):
+    """Blind or saturated depth went to the policy; a frozen counter was reused for 5 s; a capture time 10 s
+    in the future was accepted (frame age -9998 ms)."""
+    code_, ticks, commands, loop, _, policy = _run(camera=_spoilt(spoil), camera_give_up_s=1.0)
+    assert code_ == EXIT_CAMERA and loop.counts[counter] >= 10
+    holds = [t for t in ticks if t["hold"]]
+    assert holds and {t["status"] for t in holds} == {code}
+    assert all(t["frame"] is None or t["frame"] < 20 for t in ticks)  # no spoilt frame was used
+    assert all(d[:, 0, 0].max() <= d[0, 0, 0] for d in policy.depths)  # the policy saw only good depth
+    for cmd in commands[holds[0]["cmd_seq"]:]:
+        np.testing.assert_allclose(cmd["q_target"], READY_Q)
+    assert 10 <= len(holds) <= 13
+
+
+def test_a_camera_that_turns_good_again_resumes():
+    class Covered(FakeCamera):  # frames 20..24 blind: a hand over the lens for half a second
+        def poll(self, timeout_s):
+            frame = super().poll(timeout_s)
+            if frame is not None and 20 <= frame.number < 25:
+                return dataclasses.replace(frame, depth=np.zeros_like(frame.depth))
+            return frame
+
+    code, ticks, _, _, _, _ = _run(camera=lambda c: Covered(c, P), seconds=5.0)
+    statuses = [t["status"] for t in ticks]
+    assert code == EXIT_OK and "camera_blind" in statuses and statuses[-1] is None
+
+
+def test_an_oversized_action_is_never_sent_the_arm_holds_and_the_runtime_exits_6():
+    """A policy that output 1e6 rad deltas drove the arm to its limits at full speed and exited 0."""
+    class Huge(FakePolicy):
+        def __call__(self, depth, state):
+            actions = super().__call__(depth, state)
+            if self.calls >= 3:
+                actions[:, 2] = 1e6
+            return actions
+
+    code, ticks, commands, _, _, _ = _run(policy=lambda c: Huge(c, exec_horizon=2), seconds=5.0)
+    assert code == EXIT_ACTION and len(ticks) == 4
+    assert max(np.abs(c["q_target"] - READY_Q).max() for c in commands) <= 16 * DELTA
+    np.testing.assert_allclose(commands[-1]["q_target"], READY_Q)  # the final command holds
+
+
+def test_a_tolerable_action_at_the_bound_is_executed():
+    class AtBound(FakePolicy):
+        def __call__(self, depth, state):
+            actions = super().__call__(depth, state)
+            actions[:, 1] = 2.0 * self.metadata.action_scale
+            return actions
+
+    code, ticks, _, _, _, _ = _run(policy=AtBound, seconds=1.0)
+    assert code == EXIT_OK and not any(t["hold"] for t in ticks)
+
+
+def test_another_session_holding_the_arm_holds_and_exits_4():
+    """A second process moved the arm and the runtime noticed nothing and exited 0."""
+    def taken(clock):
+        robot = FakeRobot(clock)
+        robot.controller = "0123456789abcdef"
+        return robot
+
+    code, ticks, _, _, _, _ = _run(robot=taken, controller_give_up_s=1.0)
+    assert code == EXIT_ROBOT and ticks and all(t["hold"] and t["status"] == "not_controller" for t in ticks)
+    assert 10 <= len(ticks) <= 12
+
+
+def test_its_own_session_in_the_state_is_no_fault():
+    def ours(clock):
+        robot = FakeRobot(clock)
+        robot.controller = robot.tag
+        return robot
+
+    code, ticks, _, _, _, _ = _run(robot=ours, seconds=1.0)
+    assert code == EXIT_OK and not any(t["hold"] for t in ticks)

@@ -5,7 +5,7 @@ import msgpack
 import pytest
 import zmq
 
-from runtime.protocol import Encoder
+from runtime.protocol import VERSION, Encoder
 from runtime.transport import CurveKeys, Newest, TransportError, bind, connect, is_loopback, send
 from tests.runtime.fakes import free_port_pair
 
@@ -80,7 +80,7 @@ def test_newest_keeps_only_the_last_and_survives_garbage():
     pub.send_multipart([b"\xc1not msgpack", b""])
     pub.send_multipart([msgpack.packb({"v": 99}), b""])
     pub.send_multipart(enc.encode("state", t_capture=0.0, q=[0.0] * 7, dq=[0.0] * 7, gripper=0.0,
-                                  holding=False, fault=""))
+                                  holding=False, fault="", controller=""))
     time.sleep(0.1)
     assert sub.poll(0.1) is None
     assert sub.rejected == 2 and "version" in sub.last_error
@@ -122,7 +122,7 @@ def test_robot_state_stays_fresh_when_read_once_per_tick():
         enc = Encoder()
         while not stop.is_set():
             pub.send_multipart(enc.encode("state", t_capture=time.monotonic(), q=[0.0] * 7, dq=[0.0] * 7,
-                                          gripper=0.0, holding=False, fault=""))
+                                          gripper=0.0, holding=False, fault="", controller=""))
             time.sleep(0.005)
 
     threading.Thread(target=publish, daemon=True).start()
@@ -137,3 +137,23 @@ def test_robot_state_stays_fresh_when_read_once_per_tick():
         link.close()
         pub.close()
     assert max(ages[5:]) < 0.1, [round(a, 3) for a in ages]
+
+
+def test_a_deeply_nested_message_on_the_camera_socket_costs_one_message():
+    """The same 1 kB nested header that killed the driver killed the runtime through its camera reader."""
+    ctx = zmq.Context.instance()
+    port = free_port_pair()
+    pub = bind(ctx, zmq.PUB, f"tcp://127.0.0.1:{port}")
+    sub = Newest(connect(ctx, zmq.SUB, f"tcp://127.0.0.1:{port}"), "status")
+    enc = Encoder()
+    while sub.poll(0.02) is None:  # slow joiner
+        pub.send_multipart(enc.encode("status", code="warmup", detail=""))
+    value: list = []
+    for _ in range(1000):
+        value = [value]
+    pub.send_multipart([msgpack.packb({"v": VERSION, "kind": "depth", "seq": value}), b""])
+    pub.send_multipart(enc.encode("status", code="after", detail=""))
+    msg, _ = sub.poll(1.0)
+    assert msg["code"] == "after" and sub.rejected == 1 and "a list of 1 items" in sub.last_error
+    pub.close()
+    sub.sock.close()
