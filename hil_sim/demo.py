@@ -130,7 +130,7 @@ def run_episode(sim: Any, run: Run, number: int, seed: int, kind: str) -> Episod
     code, usage = run_runtime(run, watch=judge)
     seconds = time.monotonic() - began
     ticks = report.load_ticks(run.report_dir / "ticks.jsonl")
-    commands = sim.commands[first_command:]
+    commands = sim.commands.since(first_command)
     doc = report.build(ticks, commands, rate_hz=run.rate_hz, usage=usage)
     events = runtime_events((run.report_dir / "runtime.log").read_text())
     return Episode(number, seed, judge, seconds, code, doc, events, ticks, commands)

@@ -272,6 +272,12 @@ class CommandLog:
             yield {"seq": int(seq), "t_receive": float(t_receive), "deadline": float(deadline)}
 
 
+    def since(self, start: int) -> list[dict[str, Any]]:
+        """The retained receipts from the ``start``-th on (counting every receipt appended): one episode's."""
+        receipts = list(self)
+        return receipts[max(0, start - (len(self) - len(receipts))):]
+
+
 class SimServer:
     """World + physics + camera + driver, as a context manager. ``commands`` holds what the driver took."""
 

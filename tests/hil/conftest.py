@@ -5,13 +5,13 @@ import pytest
 from hil_sim.server import SimConfig, SimServer
 from tests.hil.rig import StateLog
 from tests.runtime import handmade
-from tests.runtime.fakes import free_port_pair
+from tests.runtime.fakes import free_addresses
 
 
 @pytest.fixture(scope="module")
 def sim():
-    config = SimConfig(camera=f"tcp://127.0.0.1:{free_port_pair()}",
-                       robot=f"tcp://127.0.0.1:{free_port_pair()}")
+    camera, robot = free_addresses()
+    config = SimConfig(camera=camera, robot=robot)
     with SimServer(config) as server:
         yield server
 

@@ -14,7 +14,7 @@ import pytest
 
 from hil_sim import report
 from tests.hil.rig import REPO, subprocess_env
-from tests.runtime.fakes import free_port_pair
+from tests.runtime.fakes import free_addresses
 
 pytestmark = [pytest.mark.hil, pytest.mark.slow]
 
@@ -32,8 +32,9 @@ def realtime_granted() -> bool:
 
 def test_sixty_seconds_at_10_hz_holds_the_rate(tmp_path):
     out = tmp_path / "report"
+    camera, robot = free_addresses()
     cmd = [sys.executable, "-m", "hil_sim", "--seconds", "60", "--rate", "10", "--report", str(out),
-           "--camera", f"tcp://127.0.0.1:{free_port_pair()}", "--robot", f"tcp://127.0.0.1:{free_port_pair()}"]
+           "--camera", camera, "--robot", robot]
     done = subprocess.run(cmd, cwd=REPO, env=subprocess_env(), capture_output=True, text=True, timeout=240)
     assert (out / "report.json").is_file(), (done.stdout + done.stderr)[-2000:]
     doc = json.loads((out / "report.json").read_text())

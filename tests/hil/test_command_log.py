@@ -22,3 +22,12 @@ def test_a_short_run_keeps_everything_in_order():
     for seq in range(3):
         log.append({"seq": seq, "deadline": 1.0, "t_receive": 0.5})
     assert [r["seq"] for r in log] == [0, 1, 2]
+
+
+def test_since_gives_the_receipts_from_a_count_on_even_after_the_ring_wrapped():
+    log = CommandLog(capacity=4)
+    for seq in range(6):
+        log.append({"seq": seq, "t_receive": float(seq), "deadline": seq + 0.5})
+    assert [r["seq"] for r in log.since(3)] == [3, 4, 5]
+    assert [r["seq"] for r in log.since(0)] == [2, 3, 4, 5]  # 0 and 1 were overwritten
+    assert log.since(6) == []

@@ -13,7 +13,7 @@ import pytest
 from hil_sim import demo
 from hil_sim.world import TABLE_Z
 from tests.hil.rig import REPO, subprocess_env
-from tests.runtime.fakes import free_port_pair
+from tests.runtime.fakes import free_addresses
 
 TARGET = np.array([0.5, 0.0, TABLE_Z + demo.LIFT_M])
 
@@ -80,9 +80,9 @@ def test_a_zero_rate_is_refused_in_one_line(module):
 @pytest.mark.hil
 @pytest.mark.slow
 def test_one_short_episode_writes_the_summary_the_video_and_the_plot(tmp_path):
+    camera, robot = free_addresses()
     done = _cli("hil_sim.demo", "--episodes", "1", "--seconds", "3", "--out", str(tmp_path),
-                "--camera", f"tcp://127.0.0.1:{free_port_pair()}", "--robot", f"tcp://127.0.0.1:{free_port_pair()}",
-                timeout=240)
+                "--camera", camera, "--robot", robot, timeout=240)
     assert done.returncode == 0, (done.stdout + done.stderr)[-2000:]
     lines = done.stdout.splitlines()
     assert lines[1].startswith("episode 1/1 (seed 10000): ") and "ticks" in lines[1]

@@ -139,13 +139,21 @@ def free_port_pair() -> int:
             return port
 
 
+def free_addresses() -> tuple[str, str]:
+    """Loopback camera and robot endpoints that do not collide: the robot takes two ports, and two separate
+    ``free_port_pair`` calls may hand out the same ones (nothing holds them in between)."""
+    robot = camera = free_port_pair()
+    while camera in (robot, robot + 1):
+        camera = free_port_pair()
+    return f"tcp://127.0.0.1:{camera}", f"tcp://127.0.0.1:{robot}"
+
+
 class FakeWorld:
     """Camera PUB (848x480 at ``fps`` until ``camera_stop`` is set) and driver PUB state / PULL commands."""
 
     def __init__(self, fps: float) -> None:
         self.ctx = zmq.Context()
-        self.camera = f"tcp://127.0.0.1:{free_port_pair()}"
-        self.robot = f"tcp://127.0.0.1:{free_port_pair()}"
+        self.camera, self.robot = free_addresses()
         self.fps = fps
         self.commands: list[dict] = []
         self.stop, self.camera_stop = threading.Event(), threading.Event()
