@@ -4,6 +4,8 @@
     fit       the student on every labelled step so far (round 0 from scratch, then from the last round's)
     export    the student -> student.onnx (a depth student; the next round's learner, the shipped file)
     dagger    the learner's own episodes labelled by the expert (rounds 1..R, beta halved each round)
+    readout   a depth student's readout errors on frames it was not trained on: the next round's, and the
+              last student's own episodes (seeds 30000..): fit/roundR/readout.json (milestone M1)
     curve     held-out success after each fit (seeds 20000..): learning_curve.csv and .png
     evaluate  the last round's student on seen and unseen kinds (seeds 10000..): eval_seen.json and
               eval_unseen.json
@@ -39,12 +41,14 @@ from trainer.student.checkpoint import TrainingInfo
 from trainer.student.config import StudentConfig
 from trainer.student.dagger import RoundSpec, collect_round
 from trainer.student.distill import DistillConfig, device, distill
+from trainer.student.readout import measure
 from trainer.student.steps import LabelledSteps
 from trainer.student.train import CKPT_NAME
 
 ROUND_SEED = 1_000_000
 """Round r's episodes use seeds ROUND_SEED + r * 100_000..: apart from the curve's and the evaluation's."""
 CURVE_SEED = 20_000
+HELD_OUT_SEED = 30_000
 EVAL_SEED = 10_000
 
 
@@ -116,8 +120,12 @@ class Recipe:
             torch.set_num_threads(self.cfg.threads)
         for r in range(self.cfg.rounds + 1):
             self.collect(r)
+            if r:
+                self.readout(r - 1, self.store(r))
             self.fit(r)
             self.curve(r)
+        if self.cfg.perception == "depth":
+            self.readout(self.cfg.rounds, self.held_out())
         return self.evaluate()
 
     # --- stages -------------------------------------------------------------------------------------
@@ -149,6 +157,25 @@ class Recipe:
         if c.perception == "depth" and not self.onnx(r).is_file():
             export(ckpt_path, self.onnx(r), c.ddim_steps)
 
+    def held_out(self) -> Path:
+        """The last student's own episodes (no expert steps), labelled but never trained on."""
+        c, path = self.cfg, self.out / "data" / "held_out.zarr"
+        if self._episodes(path) < c.curve_episodes:
+            spec = RoundSpec(learner=self.learner(c.rounds), horizon=c.student().action_horizon)
+            collect_round(path, self.env, spec, episodes=c.curve_episodes, seed=HELD_OUT_SEED,
+                          workers=c.workers)
+        return path
+
+    def readout(self, r: int, store: Path) -> None:
+        """Milestone M1 for round ``r``'s depth student: its readout's errors on ``store``, which holds the
+        next round's (or the held-out) rollouts, frames it was not trained on."""
+        path = self.run_dir(r) / "readout.json"
+        if self.cfg.perception != "depth" or path.is_file():
+            return
+        result = measure(self.run_dir(r) / CKPT_NAME, store, self.dev)
+        path.write_text(json.dumps(result, indent=1))
+        self._log(f"round {r} readout", {k: v for k, v in result.items() if k not in ("checkpoint", "store")})
+
     def curve(self, r: int) -> None:
         path = self.out / "learning_curve.csv"
         rows = read_curve(path)
@@ -157,6 +184,7 @@ class Recipe:
         c = self.cfg
         result = evaluate(self.learner(r), GROUPS["seen"], c.curve_episodes, seed=CURVE_SEED,
                           workers=c.workers)
+        (self.run_dir(r) / "held_out.json").write_text(json.dumps(result, indent=2))
         store = DemoStore.open(self.store(r))
         rows.append({"round": r, "steps": sum(DemoStore.open(self.store(i)).n_steps for i in range(r + 1)),
                      "round_success": round(store.attrs["succeeded"] / max(1, store.attrs["attempted"]), 4),
