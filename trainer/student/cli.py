@@ -1,5 +1,5 @@
-"""``python -m trainer student fit|recipe|init|probe ...``; fit also runs under ``torchrun --nproc_per_node
-N``."""
+"""``python -m trainer student fit|recipe|readout|init|probe ...``; fit also runs under ``torchrun
+--nproc_per_node N``."""
 
 from __future__ import annotations
 
@@ -37,6 +37,11 @@ def cmd_recipe(argv: list[str]) -> int:
     return recipe_main(argv)
 
 
+def cmd_readout(argv: list[str]) -> int:
+    from trainer.student.readout import main as readout_main
+    return readout_main(argv)
+
+
 def cmd_probe(argv: list[str]) -> int:
     from trainer.student.probe import main as probe_main
     return probe_main(argv)
@@ -44,6 +49,7 @@ def cmd_probe(argv: list[str]) -> int:
 
 HANDLERS = {"fit": (cmd_fit, "train the student on demos (eq. 10, EMA, checkpoints, resume)"),
             "recipe": (cmd_recipe, "the student that grasps: demos, DAgger rounds, export, evaluation"),
+            "readout": (cmd_readout, "a depth student's perception errors on labelled frames (M1)"),
             "init": (cmd_init, "write an untrained checkpoint (test fixtures)"),
             "probe": (cmd_probe, "offline action error of an exported student against demos")}
 
@@ -51,7 +57,7 @@ HANDLERS = {"fit": (cmd_fit, "train the student on demos (eq. 10, EMA, checkpoin
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if not argv or argv[0] not in HANDLERS:
-        listing = "\n".join(f"  {name:<5} {help_}" for name, (_, help_) in HANDLERS.items())
+        listing = "\n".join(f"  {name:<7} {help_}" for name, (_, help_) in HANDLERS.items())
         print(f"usage: python -m trainer student <command> [--help]\n\ncommands:\n{listing}", file=sys.stderr)
         return 0 if argv[:1] in (["-h"], ["--help"]) else 2
     return HANDLERS[argv[0]][0](argv[1:])

@@ -1,6 +1,8 @@
 """How well a depth student reads the object's facts (milestone M1): its readout against the labels of every
 frame of a labelled store it was not trained on, e.g. the next DAgger round's, which holds its own rollouts.
 
+    python -m trainer student readout CKPT --store held_out.zarr [--episodes 20 --learner student:ONNX]
+
 The world forgives noise that changes from step to step far better than a constant error (a 1 cm bias in where
 the hand aims costs ~20 % of grasps), so besides per-frame errors this reports each episode's mean error
 vector, the bias the policy would act on, and the same near the object, where the grasp is decided.
@@ -8,14 +10,20 @@ vector, the bias the policy would act on, and the same near the object, where th
 
 from __future__ import annotations
 
+import argparse
+import json
+import sys
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from hil_sim.objects import GROUPS
 from trainer.dataset import DemoStore
+from trainer.sim.env import EnvConfig
 from trainer.sim.labels import GRASP_YAW, OFFSET, READOUT
 from trainer.student import checkpoint
+from trainer.student.dagger import RoundSpec, collect_round
 from trainer.student.steps import LabelledSteps
 
 NEAR_M = 0.05
@@ -68,3 +76,28 @@ def measure(ckpt_path: Path, store: Path, device: torch.device | str = "cpu") ->
 
 def _round(x: float) -> float:
     return round(float(x), 3)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m trainer student readout",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("checkpoint", type=Path, help="a depth student (a recipe's fit/roundR/ckpt.pt)")
+    p.add_argument("--store", type=Path, required=True,
+                   help="labelled store to measure on; made (or topped up) with --episodes first")
+    p.add_argument("--episodes", type=int, default=0, help="labelled episodes to collect into --store first")
+    p.add_argument("--learner", default="",
+                   help="who drives them: a policy spec (student:ONNX), else the expert")
+    p.add_argument("--seed", type=int, default=30_000, help="first episode seed (apart from the recipe's)")
+    p.add_argument("--workers", type=int, default=1)
+    args = p.parse_args(argv)
+    try:
+        if args.episodes:
+            spec = checkpoint.load(args.checkpoint).info.depth_spec
+            env = EnvConfig(objects=GROUPS["seen"], depth=spec)
+            collect_round(args.store, env, RoundSpec(learner=args.learner), episodes=args.episodes,
+                          seed=args.seed, workers=args.workers)
+        print(json.dumps(measure(args.checkpoint, args.store), indent=1))
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return 0
