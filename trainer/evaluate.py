@@ -119,7 +119,7 @@ def first_close(closes: list[tuple[int, np.ndarray]]) -> dict:
 
 
 def table(result: dict) -> str:
-    width = max(12, *map(len, result["per_object"]))  # a user object is named by its path
+    width = max([12, *map(len, result["per_object"])])  # a user object is named by its path
     rows = [f"{'object':<{width}} {'success':>8}"]
     rows += [f"{k:<{width}} {v:>8.1%}" for k, v in result["per_object"].items()]
     lo, hi = result["ci95"]
