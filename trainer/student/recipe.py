@@ -286,7 +286,7 @@ def plot_curve(rows: list[dict], path: Path) -> None:
     ax.plot(rounds, rate, "o-", label="held-out success (learner alone)")
     ax.plot(rounds, [100 * float(r["round_success"]) for r in rows], "s--", alpha=0.6,
             label="the round's own episodes (with beta)")
-    ax.set(xlabel="DAgger round (0 = expert demos only)", ylabel="success, %", ylim=(0, 100),
+    ax.set(xticks=rounds, xlabel="DAgger round (0 = expert demos only)", ylabel="success, %", ylim=(0, 100),
            title=f"student learning curve ({rows[-1]['episodes']} held-out episodes per round)")
     ax.legend(loc="lower right")
     fig.tight_layout()
