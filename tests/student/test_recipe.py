@@ -148,7 +148,12 @@ def test_the_recipe_resumes_without_redoing_finished_stages(tmp_path, capsys):
     assert recipe_main([*base, "--head-dims", "16", "16"]) == 2
     assert "other settings" in capsys.readouterr().err
     summary = json.loads((tmp_path / "r" / "eval_seen.json").read_text())
-    assert summary["episodes"] == 1 and summary["policy"].startswith("oracle:")
+    assert summary["episodes"] == 1 and summary["policy"].endswith("round1/ckpt.pt")
+    more = [a if a != "1" or base[i - 1] != "--rounds" else "2" for i, a in enumerate(base)]
+    assert recipe_main([*more, "--head-dims", "16", "32"]) == 0  # one more round: only its stages run
+    stages = [json.loads(line)["stage"] for line in (tmp_path / "r" / "log.jsonl").read_text().splitlines()]
+    assert stages[len(log):] == ["round 2 data", "round 2 fit", "round 2 held-out"]
+    assert json.loads((tmp_path / "r" / "eval_seen.json").read_text())["policy"].endswith("round2/ckpt.pt")
 
 
 def test_recipe_data_are_refused_by_another_chunk_length(tmp_path):

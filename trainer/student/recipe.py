@@ -160,7 +160,8 @@ class Recipe:
 
     def held_out(self) -> Path:
         """The last student's own episodes (no expert steps), labelled but never trained on."""
-        c, path = self.cfg, self.out / "data" / "held_out.zarr"
+        c = self.cfg
+        path = self.out / "data" / f"held_out_round{c.rounds}.zarr"  # more rounds later: another learner
         if self._episodes(path) < c.curve_episodes:
             spec = RoundSpec(learner=self.learner(c.rounds), horizon=c.student().action_horizon)
             collect_round(path, self.env, spec, episodes=c.curve_episodes, seed=HELD_OUT_SEED,
@@ -198,7 +199,8 @@ class Recipe:
         c, results = self.cfg, {}
         for objects in ("seen", "unseen"):
             path = self.out / f"eval_{objects}.json"
-            if not path.is_file():
+            last = json.loads(path.read_text())["policy"] if path.is_file() else ""
+            if last != self.learner(c.rounds):  # not yet, or of an earlier last round
                 result = evaluate(self.learner(c.rounds), GROUPS[objects], c.eval_episodes, seed=EVAL_SEED,
                                   workers=c.workers)
                 path.write_text(json.dumps(result, indent=2))
