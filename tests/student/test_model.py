@@ -8,7 +8,8 @@ import torch
 from trainer.student import checkpoint
 from trainer.student.cli import main as student_main
 from trainer.student.config import StudentConfig, StudentConfigError
-from trainer.student.model import SpatialSoftmax, StudentPolicy, hand_pose
+from trainer.student.model import StudentPolicy, hand_pose
+from trainer.student.perception import SpatialSoftmax
 
 TINY = StudentConfig(width=8, head_dims=(16, 32), state_features=16, step_features=16)
 

@@ -20,7 +20,7 @@ from trainer.sim.labels import GRASP_YAW, READOUT
 from trainer.student.config import StudentConfig
 from trainer.student.data import column_scale
 from trainer.student.normaliser import RangeNormaliser
-from trainer.student.perception import HAND_FEATURES, Perception, ResNet18, SpatialSoftmax  # noqa: F401
+from trainer.student.perception import HAND_FEATURES, Perception, ResNet18
 
 
 def step_embedding(steps: torch.Tensor, dim: int) -> torch.Tensor:
