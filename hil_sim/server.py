@@ -41,7 +41,7 @@ from hil_sim.world import CAMERA, World  # noqa: E402
 from runtime.franka_driver.mujoco_backend import MujocoBackend  # noqa: E402
 from runtime.franka_driver.server import DriverConfig, DriverServer  # noqa: E402
 from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT, Encoder  # noqa: E402
-from runtime.transport import bind  # noqa: E402
+from runtime.transport import TransportError, bind  # noqa: E402
 
 DEPTH_SCALE = 0.001  # uint16 millimetres, as a D455 reports with its default depth units
 SENSORS = ("clean", "stereo")
@@ -243,6 +243,9 @@ def _depth_source(config: SimConfig, world: World) -> tuple[Callable[[], np.ndar
     return exact, renderer.close
 
 
+_REBIND_S = 2.0
+"""How long a driver restart waits for its port to be released."""
+
 class CommandLog:
     """Receipts of the commands the driver executed, for the benchmark's report: the newest ``capacity`` of
     them in a fixed ring of (seq, t_receive, deadline). A list of every receipt grew ~12 MB an hour in the
@@ -309,11 +312,21 @@ class SimServer:
         self._ctx.term()
 
     def start_driver(self) -> None:
-        """Start (or restart) the driver on the configured address."""
-        backend = MujocoBackend(self.world, self.physics.lock)
+        """Start (or restart) the driver on the configured address. Right after ``stop_driver`` the port can
+        still be held for a moment: ZeroMQ closes the old sockets on its I/O thread, after ``close`` returns
+        (a restart failed with "Address already in use" within 4 tries), so a bind is retried for a while."""
         config = DriverConfig(bind=self.config.robot, state_hz=self.config.state_hz)
-        self.driver = DriverServer(backend, config, on_command=self.commands.append, context=self._ctx)
-        self.driver.__enter__()
+        deadline = time.monotonic() + _REBIND_S
+        while True:
+            self.driver = DriverServer(MujocoBackend(self.world, self.physics.lock), config,
+                                       on_command=self.commands.append, context=self._ctx)
+            try:
+                self.driver.__enter__()
+                break
+            except TransportError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.02)
         self._driver_stop = threading.Event()
         self._driver_thread = threading.Thread(target=self._serve, name="hil-driver", daemon=True)
         self._driver_thread.start()

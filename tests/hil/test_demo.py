@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from hil_sim import demo
+from hil_sim.server import SimConfig, SimServer
 from hil_sim.world import TABLE_Z
 from tests.hil.rig import REPO, subprocess_env
 from tests.runtime.fakes import free_addresses
@@ -92,3 +93,15 @@ def test_one_short_episode_writes_the_summary_the_video_and_the_plot(tmp_path):
     assert doc["episodes"] == 1 and doc["ticks"] >= 25 and doc["runtime_exits"] == [0]
     assert (tmp_path / "episode.gif").read_bytes()[:6] == b"GIF89a"
     assert (tmp_path / "latency.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.hil
+def test_the_driver_restarts_on_its_own_address_again_and_again():
+    """stop_driver then start_driver on the same port (each demo episode does): ZeroMQ releases the old port
+    asynchronously, which made the fourth restart or so fail with "Address already in use"."""
+    camera, robot = free_addresses()
+    with SimServer(SimConfig(camera, robot)) as sim:
+        for _ in range(40):
+            sim.stop_driver()
+            sim.start_driver()
+        assert sim._driver_thread.is_alive()
