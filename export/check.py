@@ -2,10 +2,11 @@
 torch DDIM loop (diffusers' DDIMScheduler driving the checkpoint's network, same inputs and noise) and the
 latency of both, measured in one process with the same thread count.
 
-The file is opened exactly as the runtime opens it (``runtime.policy.Policy``). Parity needs the checkpoint
-and the [train] extra (torch); a clone has neither the checkpoint, which is not shipped, nor, after
-``make demo``, torch: then parity is reported as not checked, in one line, and the latency of onnxruntime
-alone is measured. A missing or unreadable file is one error line."""
+The file is opened exactly as the runtime opens it (``runtime.policy.Policy``). Torch parity and torch's
+latency need the checkpoint and the [train] extra (torch); a clone has neither the checkpoint, which is not
+shipped, nor, after ``make demo``, torch: there onnxruntime is compared with the torch actions recorded in
+the file at export (``export.reference``) and timed alone. A file exported before references were recorded
+says in one line that parity was not checked. A missing or unreadable file is one error line."""
 
 from __future__ import annotations
 
@@ -16,41 +17,18 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import onnxruntime as ort
 
+from export import reference
+from export.reference import example_feeds, reference_actions
 from runtime.metadata import PolicyMetadata
 from runtime.policy import Policy, PolicyError, SessionConfig
-
-if TYPE_CHECKING:
-    import torch
-
-    from trainer.student.model import StudentPolicy
 
 
 class CheckError(RuntimeError):
     """The policy file and checkpoint do not belong together, or one of them cannot be found."""
-
-
-def reference_actions(policy: StudentPolicy, meta: PolicyMetadata, depth: torch.Tensor, state: torch.Tensor,
-                      noise: torch.Tensor) -> torch.Tensor:
-    """The eager torch loop the graph must reproduce: diffusers' DDIM steps, then robot units."""
-    import torch
-
-    from trainer.student.ddim import reference_scheduler
-
-    sched = reference_scheduler(policy.config.train_timesteps, meta.ddim_steps, meta.ddim_spacing,
-                                policy.config.prediction)
-    with torch.no_grad():
-        obs = policy.encode(depth, state)
-        x = noise
-        for t in sched.timesteps:
-            x = sched.step(policy(x, t.expand(x.shape[0]), obs), t, x).prev_sample
-        actions = policy.action_norm.unnormalise(x)
-    actions[..., :7] *= meta.action_scale
-    return actions
 
 
 def session(path: Path, threads: int) -> ort.InferenceSession:
@@ -85,7 +63,7 @@ def find_checkpoint(meta: PolicyMetadata, model_path: Path, given: Path | None) 
     that name beside the model. None when none is found and none was given (a clone: not shipped)."""
     from trainer.student import checkpoint
 
-    recorded = Path(meta.training_data.get("checkpoint", ""))
+    recorded = Path(meta.training_data.get("checkpoint", "")).expanduser()
     candidates = [given] if given else [recorded, model_path.parent / recorded.name]
     path = next((c for c in candidates if c.name and c.is_file()), None)
     if path is None:
@@ -98,45 +76,44 @@ def find_checkpoint(meta: PolicyMetadata, model_path: Path, given: Path | None) 
     return path
 
 
-def example_feeds(meta: PolicyMetadata, seed: int = 0) -> dict[str, np.ndarray]:
-    """Random inputs of the graph's static shapes: depth in [0, 1] with 10 % holes, state, start noise."""
-    rng, shapes = np.random.default_rng(seed), meta.input_shapes()
-    depth = rng.random(shapes["depth"], dtype=np.float32)
-    depth[rng.random(shapes["depth"]) < 0.1] = meta.preprocess.invalid_value
-    return {"depth": depth, "state": (rng.standard_normal(shapes["state"]) * 0.5).astype(np.float32),
-            "noise": rng.standard_normal(shapes["noise"], dtype=np.float32)}
-
-
-def parity_skipped(meta: PolicyMetadata, model_path: Path, given: Path | None) -> tuple[Path | None, str]:
-    """(checkpoint, "") when parity can be checked here, else (None, why not, in words)."""
+def checkpoint_here(meta: PolicyMetadata, model_path: Path, given: Path | None) -> Path | None:
+    """The checkpoint to run torch parity against, or None where torch (the [train] extra) or the
+    checkpoint is not here; a checkpoint that is given must be found."""
     try:
-        import torch  # noqa: F401  (the [train] extra)
+        import torch  # noqa: F401
     except ImportError:
-        return None, "torch is not installed (the [train] extra: `make test` installs it)"
-    ckpt = find_checkpoint(meta, model_path, given)
-    if ckpt is None:
-        recorded = meta.training_data.get("checkpoint") or "(none recorded)"
-        return None, f"its checkpoint {Path(recorded).name} is not shipped; pass --checkpoint CKPT"
-    return ckpt, ""
+        if given:
+            raise CheckError("--checkpoint needs torch (the [train] extra; `make test` installs it)") \
+                from None
+        return None
+    return find_checkpoint(meta, model_path, given)
 
 
 def run_check(model_path: Path, ckpt_path: Path | None = None, repeats: int = 30, threads: int = 2,
               trials: int = 3) -> dict:
+    """Parity against the checkpoint where it is here, else against the reference actions recorded at export
+    (``export.reference``), else none (a file exported before references were recorded); and latency."""
     policy = Policy(model_path, SessionConfig(threads, False))
     meta = policy.metadata
-    ckpt, skipped = parity_skipped(meta, model_path, ckpt_path)
-    feeds = example_feeds(meta)
-
-    def run_ort() -> np.ndarray:
-        return policy.session.run(["actions"], feeds)[0]
-
+    ckpt = checkpoint_here(meta, model_path, ckpt_path)
+    recorded = reference.recorded(policy.session.get_modelmeta().custom_metadata_map)
     doc = {"model": str(model_path), "ddim_steps": meta.ddim_steps, "ddim_spacing": meta.ddim_spacing,
-           "threads": threads, "repeats": repeats, "parity_skipped": skipped or None}
-    if ckpt is None:
-        ort_ms = timed(run_ort, repeats)
-        doc.update(max_abs_err=None, torch_ms=None, torch_p99_ms=None, speedup=None)
-    else:
+           "threads": threads, "repeats": repeats, "parity_against": None, "parity_skipped": None,
+           "max_abs_err": None, "torch_ms": None, "torch_p99_ms": None, "speedup": None}
+    if ckpt is not None:
         ort_ms = _torch_parity(doc, policy, ckpt, repeats, threads, trials)
+    else:
+        if recorded is not None:
+            seed, actions = recorded
+            got = policy.session.run(["actions"], example_feeds(meta, seed))[0]
+            doc.update(parity_against="reference recorded at export",
+                       max_abs_err=float(np.abs(got - actions).max()))
+        else:
+            name = Path(meta.training_data.get("checkpoint") or "(none recorded)").name
+            doc["parity_skipped"] = (f"the file records no reference actions and its checkpoint {name} "
+                                     "is not here; pass --checkpoint CKPT")
+        feeds = example_feeds(meta)
+        ort_ms = timed(lambda: policy.session.run(["actions"], feeds), repeats)
     doc.update(ort_ms=statistics.median(ort_ms), ort_p99_ms=float(np.percentile(ort_ms, 99)),
                metadata=json.loads(meta.to_json()))
     return doc
@@ -158,16 +135,23 @@ def _torch_parity(doc: dict, policy: Policy, ckpt: Path, repeats: int, threads: 
     errors = []
     for seed in range(trials):
         feeds = example_feeds(meta, seed)
-        depth, state, noise = (torch.from_numpy(feeds[k]) for k in ("depth", "state", "noise"))
         got = policy.session.run(["actions"], feeds)[0]
-        errors.append(float(np.abs(got - reference_actions(net, meta, depth, state, noise).numpy()).max()))
+        errors.append(float(np.abs(got - reference_actions(net, meta, feeds)).max()))
     ort_ms, torch_ms = timed_side_by_side([lambda: policy.session.run(["actions"], feeds),
-                                           lambda: reference_actions(net, meta, depth, state, noise)],
-                                          repeats)
-    doc.update(max_abs_err=max(errors), torch_ms=statistics.median(torch_ms),
+                                           lambda: reference_actions(net, meta, feeds)], repeats)
+    doc.update(parity_against="checkpoint", max_abs_err=max(errors), torch_ms=statistics.median(torch_ms),
                torch_p99_ms=float(np.percentile(torch_ms, 99)),
                speedup=statistics.median(torch_ms) / statistics.median(ort_ms))
     return ort_ms
+
+
+def summary(model: Path, report: dict) -> str:
+    line = f"{model}: K={report['ddim_steps']} ort {report['ort_ms']:.2f} ms (p99 {report['ort_p99_ms']:.2f})"
+    if report["max_abs_err"] is not None:
+        line += f", max_abs_err {report['max_abs_err']:.2e} against the {report['parity_against']}"
+    if report["torch_ms"] is not None:
+        line += f", torch {report['torch_ms']:.2f} ms, speedup {report['speedup']:.2f}x"
+    return line
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -188,14 +172,10 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
     if args.json:
         print(json.dumps(report))
-    elif report["max_abs_err"] is None:
-        print(f"{args.model}: K={report['ddim_steps']} ort {report['ort_ms']:.2f} ms (p99 "
-              f"{report['ort_p99_ms']:.2f})")
     else:
-        print(f"{args.model}: K={report['ddim_steps']} max_abs_err={report['max_abs_err']:.2e} "
-              f"ort {report['ort_ms']:.2f} ms, torch {report['torch_ms']:.2f} ms, "
-              f"speedup {report['speedup']:.2f}x")
+        print(summary(args.model, report))
     return 0
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import os
 import warnings
 from pathlib import Path
 
@@ -10,6 +11,8 @@ import onnx
 import torch
 from torch import nn
 
+from export import reference
+from export.reference import example_feeds
 from runtime.metadata import METADATA_KEY, PolicyMetadata
 from trainer.student.checkpoint import Checkpoint, sha256
 from trainer.student.ddim import ddim_plan, denoise
@@ -38,13 +41,12 @@ class UnrolledPolicy(nn.Module):
         return self.policy.action_norm.unnormalise(x) * self.robot_scale
 
 
-def example_inputs(meta: PolicyMetadata, seed: int = 0) -> tuple[torch.Tensor, ...]:
-    """Random inputs of the graph's static shapes: depth in [0, 1] with some -1 holes, state, noise."""
-    g = torch.Generator().manual_seed(seed)
-    shapes = meta.input_shapes()
-    depth = torch.rand(shapes["depth"], generator=g)
-    depth[torch.rand(shapes["depth"], generator=g) < 0.1] = meta.preprocess.invalid_value
-    return depth, torch.randn(shapes["state"], generator=g) * 0.5, torch.randn(shapes["noise"], generator=g)
+def portable(text: str) -> str:
+    """``text`` with paths under the working directory made relative and those under the home folder
+    written from ``~``: a shipped file names no machine's absolute paths."""
+    for root, short in ((Path.cwd(), ""), (Path.home(), "~" + os.sep)):
+        text = text.replace(f"{root}{os.sep}", short)
+    return text
 
 
 def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path,
@@ -57,7 +59,8 @@ def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path,
         ddim_steps=ddim_steps, ddim_spacing=spacing, state_dim=cfg.state_dim, action_dim=cfg.action_dim,
         normalisation={"state": net.state_norm.summary(), "action": net.action_norm.summary(),
                        "action_units": "env [-1, 1]; joints x action_scale in the graph output"},
-        training_data={**info.data, "checkpoint": str(Path(ckpt_path).resolve()),
+        training_data={**{k: portable(v) if isinstance(v, str) else v for k, v in info.data.items()},
+                       "checkpoint": portable(str(Path(ckpt_path).resolve())),
                        "checkpoint_sha256": sha256(ckpt_path), "train_step": ckpt.step,
                        "student_config": cfg.to_json()},
         trained=info.trained)
@@ -65,24 +68,28 @@ def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path,
 
 def build_model(ckpt: Checkpoint, ckpt_path: Path, ddim_steps: int,
                 spacing: str = "leading") -> tuple[onnx.ModelProto, PolicyMetadata]:
-    """Trace the unrolled policy to ONNX (TorchScript exporter, one file, static shapes); attach metadata."""
+    """Trace the unrolled policy to ONNX (TorchScript exporter, one file, static shapes); attach metadata and
+    the torch reference actions ``export.check`` compares against where the checkpoint is not at hand."""
     meta = policy_metadata(ckpt, ddim_steps, ckpt_path, spacing)
-    module = UnrolledPolicy(ckpt.policy(), ddim_steps, ckpt.info.action_scale, spacing).eval()
+    policy = ckpt.policy()
+    module = UnrolledPolicy(policy, ddim_steps, ckpt.info.action_scale, spacing).eval()
     buf = io.BytesIO()
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # tracer warnings about Python constants are the point here
-        torch.onnx.export(module, example_inputs(meta), buf, input_names=list(INPUT_NAMES),
+        example = tuple(torch.from_numpy(v) for v in example_feeds(meta).values())
+        torch.onnx.export(module, example, buf, input_names=list(INPUT_NAMES),
                           output_names=list(OUTPUT_NAMES), opset_version=OPSET, dynamo=False)
     model = onnx.load_from_string(buf.getvalue())
-    set_metadata(model, meta)
+    set_metadata(model, meta, reference.record(policy, meta))
     onnx.checker.check_model(model, full_check=True)
     return model, meta
 
 
-def set_metadata(model: onnx.ModelProto, meta: PolicyMetadata) -> None:
+def set_metadata(model: onnx.ModelProto, meta: PolicyMetadata, recorded_reference: str) -> None:
     del model.metadata_props[:]
-    entry = model.metadata_props.add()
-    entry.key, entry.value = METADATA_KEY, meta.to_json()
+    for key, value in ((METADATA_KEY, meta.to_json()), (reference.REFERENCE_KEY, recorded_reference)):
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
 
 
 def read_metadata(model: onnx.ModelProto) -> PolicyMetadata:

@@ -17,7 +17,8 @@ import onnx
 from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 
 from export.check import session, timed_side_by_side
-from export.graph import example_inputs, read_metadata
+from export.graph import read_metadata
+from export.reference import example_feeds
 from runtime.metadata import PolicyMetadata
 from trainer.student.checkpoint import Checkpoint
 
@@ -46,7 +47,7 @@ def calibration_feeds(meta: PolicyMetadata, ckpt: Checkpoint, count: int = 32) -
         batch = data.batch(rng.integers(0, len(data), count), rng)
         pairs = [(batch.depth[i:i + 1].numpy(), batch.state[i:i + 1].numpy()) for i in range(count)]
     else:
-        pairs = [tuple(t.numpy() for t in example_inputs(meta, seed)[:2]) for seed in range(count)]
+        pairs = [(f["depth"], f["state"]) for f in (example_feeds(meta, seed) for seed in range(count))]
     noise_shape = meta.input_shapes()["noise"]
     return [{"depth": d, "state": s, "noise": rng.standard_normal(noise_shape).astype(np.float32)}
             for d, s in pairs]

@@ -12,9 +12,10 @@ import numpy as np
 import onnx
 import pytest
 
+from export import reference
 from export.__main__ import main as export_main
 from export.check import CheckError, run_check
-from export.graph import INPUT_NAMES, OUTPUT_NAMES, read_metadata
+from export.graph import INPUT_NAMES, OUTPUT_NAMES, portable, read_metadata
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -125,3 +126,30 @@ def test_check_on_a_missing_or_corrupt_file_is_one_error_line(tmp_path, content,
     proc = _check_cli(str(path), "--json")
     assert proc.returncode == 2 and proc.stdout == ""
     assert proc.stderr.count("\n") == 1 and needle in proc.stderr
+
+
+def test_check_without_the_checkpoint_compares_with_the_reference_recorded_at_export(
+        untrained_student_checkpoint, tmp_path):
+    """A clone has the policy file but not its checkpoint: parity is still measured, against the torch
+    actions recorded in the file, and a wrong record is caught."""
+    ckpt, out = tmp_path / "gone.pt", tmp_path / "student.onnx"
+    ckpt.write_bytes(untrained_student_checkpoint.read_bytes())
+    assert export_main([str(ckpt), "--ddim-steps", "4", "--out", str(out)]) == 0
+    ckpt.unlink()
+    report = run_check(out, repeats=1, threads=1)
+    assert report["parity_against"] == "reference recorded at export" and report["parity_skipped"] is None
+    assert report["max_abs_err"] <= 1e-5 and report["torch_ms"] is None
+
+    model = onnx.load(str(out))
+    entry = next(p for p in model.metadata_props if p.key == reference.REFERENCE_KEY)
+    doc = json.loads(entry.value)
+    entry.value = json.dumps(doc | {"actions": (np.asarray(doc["actions"]) + 0.5).tolist()})
+    onnx.save(model, out)
+    assert run_check(out, repeats=1, threads=1)["max_abs_err"] == pytest.approx(0.5, abs=1e-4)
+
+
+def test_metadata_names_no_absolute_path_under_the_working_or_home_folder(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    home = Path.home()
+    text = f"{tmp_path}/runs/ckpt.pt --init {home}/.cache/x.pt /elsewhere/y.pt"
+    assert portable(text) == "runs/ckpt.pt --init ~/.cache/x.pt /elsewhere/y.pt"
