@@ -142,16 +142,15 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return sorted(found)
 
 
-def report(tree: Tree) -> dict[str, object]:
-    """One column of the table: row label -> value."""
-    rows: dict[str, object] = {f"lines (.py+.sh) {top}/": n for top, n in sorted(code_lines(tree).items())}
-    files, code = model_files(tree)
-    rows["files in models/ (code)"] = f"{files} ({code})"
-    rows.update({f"lines {doc}": n for doc, n in sorted(doc_lines(tree).items())})
+def report(tree: Tree) -> list[dict[str, object]]:
+    """One column of the table, as sections (code, models/, docs, imports) of row label -> value."""
+    code = {f"lines (.py+.sh) {top}/": n for top, n in sorted(code_lines(tree).items())}
+    files, code_files = model_files(tree)
+    docs = {f"lines {doc}": n for doc, n in sorted(doc_lines(tree).items())}
     found = cycles(import_graph(tree))
-    rows["import cycles"] = len(found)
-    rows.update({f"cycle {i + 1}": " <-> ".join(c) for i, c in enumerate(found)})
-    return rows
+    imports: dict[str, object] = {"import cycles": len(found)}
+    imports.update({f"cycle {i + 1}": " <-> ".join(c) for i, c in enumerate(found)})
+    return [code, {"files in models/ (code)": f"{files} ({code_files})"}, docs, imports]
 
 
 def main() -> None:
@@ -162,11 +161,11 @@ def main() -> None:
     columns = {args.rev or "working tree": report(read_tree(args.rev))}
     if args.before:
         columns = {args.before: report(read_tree(args.before)), **columns}
-    labels = list(dict.fromkeys(label for rows in columns.values() for label in rows))
     print("| | " + " | ".join(columns) + " |")
     print("| --- |" + " --- |" * len(columns))
-    for label in labels:
-        print(f"| {label} | " + " | ".join(str(rows.get(label, "-")) for rows in columns.values()) + " |")
+    for section in zip(*columns.values(), strict=True):
+        for label in dict.fromkeys(label for rows in section for label in rows):
+            print(f"| {label} | " + " | ".join(str(rows.get(label, "-")) for rows in section) + " |")
 
 
 if __name__ == "__main__":
