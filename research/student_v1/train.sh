@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The recorded commands that produced models/student.onnx (step 6: the best recipe's GT student fine-tuned on
-# DDG depth) and the first recipe before it (steps 2-5: the GT student that models/student/table2.sh starts
+# DDG depth) and the first recipe before it (steps 2-5: the GT student that research/student_v1/table2.sh starts
 # from, the first DDG student, a control without the object loss).
 # Run from the repository root; everything lands in runs/ (git-ignored) except the shipped files.
 set -euo pipefail
@@ -36,6 +36,6 @@ python -m export runs/student/gt_1000_obj0/ckpt.pt --ddim-steps 4 --out runs/stu
 #    student given the hand's pose and the object's offset from it, 36000 + 12000 steps (`sixk`); then 8000 +
 #    12000 steps from it on the shipped DDG's depth of the first 1000 demos (DDIM 5), executing 4 of each
 #    chunk, and its measures (`ddga6k`).
-models/student/table2.sh sixk
-models/student/table2.sh ddga6k
+research/student_v1/table2.sh sixk
+research/student_v1/table2.sh ddga6k
 cp runs/student/ddga6k_hpos_more_12k_x4.onnx models/student.onnx

@@ -1,4 +1,4 @@
-"""The student's action head with perfect perception (docs/student.md "The oracle"): the depth encoder
+"""The student's action head with perfect perception (docs/student.md@b8caf57 "The oracle"): the depth encoder
 replaced by the episode's true object facts (table position, cos/sin of twice its yaw, kind one-hot), the same
 1-D U-Net head, state MLP, eq. 10 loss, EMA and DDIM sampling, trained on the same demos; then run closed loop
 in the simulated world without rendering depth (seen kinds, seeds 10000.., randomised episodes). If it too
@@ -7,9 +7,9 @@ joint state (``trainer.student.model.hand_pose``) and the object's offset from t
 says how precisely perception must place the object: the oracle then gets the object's position off by a
 random error, one per episode.
 
-    python models/student/oracle.py fit --out runs/student/oracle/facts [--hand] [--steps 8000]
-    python models/student/oracle.py evaluate runs/student/oracle/facts/oracle.pt --episodes 60 [--exec 8] \
-        [--facts-noise-cm 1.5]
+python research/student_v1/oracle.py fit --out runs/student/oracle/facts [--hand] [--steps 8000]
+python research/student_v1/oracle.py evaluate runs/student/oracle/facts/oracle.pt --episodes 60 [--exec 8] \
+    [--facts-noise-cm 1.5]
 """
 
 from __future__ import annotations

@@ -1,18 +1,18 @@
-"""Where a student's grasps go wrong (docs/student.md "Where the closing error comes from"); seen kinds, seeds
-10000.., randomised episodes, one process:
+"""Where a student's grasps go wrong (docs/student.md@b8caf57 "Where the closing error comes from"); seen
+kinds, seeds 10000.., randomised episodes, one process:
 
-    python models/student/diagnose.py tolerance --episodes 30   # the scripted expert aiming off on purpose
-    python models/student/diagnose.py spread student:S.onnx --episodes 90   # what the closing offset follows
-    python models/student/diagnose.py dart --sigma 0 0.3 --episodes 24       # the expert under DART noise
-    python models/student/diagnose.py descent student:S.onnx --episodes 30   # where the hand strays off
-    python models/student/diagnose.py locate student:S.onnx --checkpoint ckpt.pt   # its object estimate
-                                                          [--sensor stereo]    # on what the sensor shows
-    python models/student/diagnose.py parts scripted --checkpoint ckpt.pt --sensor stereo   # holes or values?
-    python models/student/diagnose.py turn student:S.onnx --episodes 40     # the wrist's turn at the close
-                                                          [--sensor stereo]
-    python models/student/diagnose.py copycat S.onnx --demos D.zarr   # its wrist turn on the demos, by step
-                                              [--checkpoint ckpt.pt]  # a --seen-turn student's yaw reading
-    python models/student/diagnose.py decides --checkpoint ckpt.pt --demos D.zarr --episodes 600
+python research/student_v1/diagnose.py tolerance --episodes 30   # the scripted expert aiming off on purpose
+python research/student_v1/diagnose.py spread student:S.onnx --episodes 90   # what the closing offset follows
+python research/student_v1/diagnose.py dart --sigma 0 0.3 --episodes 24       # the expert under DART noise
+python research/student_v1/diagnose.py descent student:S.onnx --episodes 30   # where the hand strays off
+python research/student_v1/diagnose.py locate student:S.onnx --checkpoint ckpt.pt   # its object estimate
+                                                      [--sensor stereo]    # on what the sensor shows
+python research/student_v1/diagnose.py parts scripted --checkpoint ckpt.pt --sensor stereo  # holes or values?
+python research/student_v1/diagnose.py turn student:S.onnx --episodes 40     # the wrist's turn at the close
+                                                      [--sensor stereo]
+python research/student_v1/diagnose.py copycat S.onnx --demos D.zarr   # its wrist turn on the demos, by step
+                                          [--checkpoint ckpt.pt]  # a --seen-turn student's yaw reading
+python research/student_v1/diagnose.py decides --checkpoint ckpt.pt --demos D.zarr --episodes 600
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
 look like; ``spread`` regresses a policy's closing offset (object minus grasp site when it first closes the

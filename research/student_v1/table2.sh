@@ -1,43 +1,43 @@
 #!/usr/bin/env bash
 # The paper's Table II analogue (issue 7): students trained on four depth sources with one budget, each run
 # under the exact (clean) and the active-stereo (stereo) sensor on seen and unseen kinds.
-#   models/student/table2.sh train      the students (after train.sh steps 1-3: demos, GT student, DDG depth)
-#   models/student/table2.sh evaluate [NAME...]  every cell (of the students named) -> runs/table2/*.json
+#   research/student_v1/table2.sh train      the students (after train.sh steps 1-3: demos, GT student, DDG depth)
+#   research/student_v1/table2.sh evaluate [NAME...]  every cell (of the students named) -> runs/table2/*.json
 #                                       (skips cells already written)
-#   models/student/table2.sh table      docs/table2.json + the markdown table of the README
-#   models/student/table2.sh key [NAME...]  rows at 180 episodes per cell (30 per kind, as issue 7 asks; default
+#   research/student_v1/table2.sh table      docs/table2.json + the markdown table of the README
+#   research/student_v1/table2.sh key [NAME...]  rows at 180 episodes per cell (30 per kind, as issue 7 asks; default
 #                                       gt, ddg, ddg_b) -> runs/table2/key; `table` prefers these cells
-#   models/student/table2.sh reactive   a GT student on demos of the phase-free (reactive) expert, and its cells
-#   models/student/table2.sh dagger     the hand-target GT student, recovery demos where it drives, the students
+#   research/student_v1/table2.sh reactive   a GT student on demos of the phase-free (reactive) expert, and its cells
+#   research/student_v1/table2.sh dagger     the hand-target GT student, recovery demos where it drives, the students
 #                                       fine-tuned on them (and the same budget without them), and their cells
-#   models/student/table2.sh dart       DART demos (noisy execution, clean labels), a GT student fine-tuned on them
+#   research/student_v1/table2.sh dart       DART demos (noisy execution, clean labels), a GT student fine-tuned on them
 #                                       beside one on the scripted demos alone, and their clean cells
-#   models/student/table2.sh looking    more scripted demos, and the object head also on a student's recovery frames,
+#   research/student_v1/table2.sh looking    more scripted demos, and the object head also on a student's recovery frames,
 #                                       each fine-tuned like `dart`, and their clean cells
-#   models/student/table2.sh handpose   the oracle (perfect perception, same head) with and without the hand's pose,
+#   research/student_v1/table2.sh handpose   the oracle (perfect perception, same head) with and without the hand's pose,
 #                                       then GT students given the hand's pose (and the object's offset from it),
 #                                       each fine-tuned like `dart`, and their clean cells
-#   models/student/table2.sh moredata   the hand-pose students on 3000 demos, from scratch, and their measures
-#   models/student/table2.sh sixk       the best of those on 6000 demos, and its measures
-#   models/student/table2.sh ddgb6k     the best GT student (6000 demos) fine-tuned on DDG (b) depth (8000 steps,
+#   research/student_v1/table2.sh moredata   the hand-pose students on 3000 demos, from scratch, and their measures
+#   research/student_v1/table2.sh sixk       the best of those on 6000 demos, and its measures
+#   research/student_v1/table2.sh ddgb6k     the best GT student (6000 demos) fine-tuned on DDG (b) depth (8000 steps,
 #                                       then 12000 more), their measures and stereo cells
-#   models/student/table2.sh ddgb_heldout  their object estimate on DDG (b) depth, held-out and training demos
-#   models/student/table2.sh ddgb6k_all DDG (b) depth of all 6000 demos (resumable)
-#   models/student/table2.sh ddgb4k     `ddgb6k`'s fine-tune on DDG (b) depth of the first 4000 demos (once
+#   research/student_v1/table2.sh ddgb_heldout  their object estimate on DDG (b) depth, held-out and training demos
+#   research/student_v1/table2.sh ddgb6k_all DDG (b) depth of all 6000 demos (resumable)
+#   research/student_v1/table2.sh ddgb4k     `ddgb6k`'s fine-tune on DDG (b) depth of the first 4000 demos (once
 #                                       ddgb6k_all has reached them), its held-out object estimate and key cells
-#   models/student/table2.sh sensor [N] the ceiling of any generator of the stereo sensor: `ddgb6k`'s fine-tunes
+#   research/student_v1/table2.sh sensor [N] the ceiling of any generator of the stereo sensor: `ddgb6k`'s fine-tunes
 #                                       on the sensor's own frames of the first N (default 1000) of the same demos,
 #                                       its object estimate on the sensor's frames and key cells
-#   models/student/table2.sh best       Table II at the best recipe: `ddgb6k`'s fine-tunes on randnoise and on
+#   research/student_v1/table2.sh best       Table II at the best recipe: `ddgb6k`'s fine-tunes on randnoise and on
 #                                       DDG (b) without grafting, and the key cells of every source from that start
-#   models/student/table2.sh ddga6k     `ddgb6k`'s fine-tunes on DDG (a)'s depth (models/ddg, the real captures) of
+#   research/student_v1/table2.sh ddga6k     `ddgb6k`'s fine-tunes on DDG (a)'s depth (models/ddg, the real captures) of
 #                                       the same 1000 demos, its held-out object estimate and key cells
-#   models/student/table2.sh nografta6k the same on DDG (a)'s depth without grafting, and its key cells
-#   models/student/table2.sh ddga192 [N]  `ddga6k`'s fine-tunes on DDG (a) depth of N (default 1000) demos at
+#   research/student_v1/table2.sh nografta6k the same on DDG (a)'s depth without grafting, and its key cells
+#   research/student_v1/table2.sh ddga192 [N]  `ddga6k`'s fine-tunes on DDG (a) depth of N (default 1000) demos at
 #                                       192x144, from `finer`'s student, and its cells under both sensors
-#   models/student/table2.sh ddga192_short  its first 8000 steps alone, under both sensors
-#   models/student/table2.sh mix192 [SHARE]  those 8000 steps with SHARE (default 0.5) of the samples on clean depth
-#   models/student/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
+#   research/student_v1/table2.sh ddga192_short  its first 8000 steps alone, under both sensors
+#   research/student_v1/table2.sh mix192 [SHARE]  those 8000 steps with SHARE (default 0.5) of the samples on clean depth
+#   research/student_v1/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
 # cells are kept in runs/table2_v1 and docs/table2_v1.json.
@@ -71,7 +71,7 @@ train() {
 
 # name policy-file restore
 HPOS="--hand-pose --object-offset --hand-target --seen-offset"
-# the best recipe's inputs and targets (docs/student.md "3000 demos"): the hand's pose, the object's offset from it
+# the best recipe's inputs and targets (docs/student.md@b8caf57 "3000 demos"): the hand's pose, the object's offset from it
 # as estimated and as read by the head, and the hand target; word-split on purpose where it is used
 
 STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
@@ -212,7 +212,7 @@ dagger() {
 }
 
 dart() {
-    # DART demos (docs/student.md "Not DART either"): the scripted expert with its joint commands executed under N(0, 0.3)
+    # DART demos (docs/student.md@b8caf57 "Not DART either"): the scripted expert with its joint commands executed under N(0, 0.3)
     # noise, its own actions stored; 500 successful episodes (seeds 20000..) appended to a copy of the 1000
     # scripted demos. The GT student fine-tuned on them beside the same budget on the scripted demos alone.
     [ -d runs/sim/demos_seen_dart.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_dart.zarr
@@ -229,7 +229,7 @@ dart() {
 }
 
 looking() {
-    # docs/student.md "The hand strays on the way down": 2000 more scripted demos (seeds 31002..) beside the 1000, and
+    # docs/student.md@b8caf57 "The hand strays on the way down": 2000 more scripted demos (seeds 31002..) beside the 1000, and
     # the object head also trained on the frames of 600 recovery episodes of gt_more_8k (the student drives to a
     # seeded step, the reactive expert finishes; seeds 40000..); each the `dart` budget, against gt_more_8k.
     demos_3k
@@ -246,19 +246,19 @@ looking() {
 }
 
 handpose() {
-    # docs/student.md "The oracle": models/student/oracle.py (60 episodes, execute 8 and 4 of each chunk), then
+    # docs/student.md@b8caf57 "The oracle": research/student_v1/oracle.py (60 episodes, execute 8 and 4 of each chunk), then
     # the hand's pose by forward kinematics (and the object head's offset from it) as state inputs of the GT
     # student, each the `dart` budget from gt_1000_obj1, against gt_more_8k.
     local run exec
     for run in "facts_8k" "hand_8k --hand" "facts_24k --steps 24000" "hand_24k --hand --steps 24000"; do
         set -- $run
-        [ -f "runs/student/oracle/$1/oracle.pt" ] || python models/student/oracle.py fit --out "runs/student/oracle/$1" "${@:2}"
+        [ -f "runs/student/oracle/$1/oracle.pt" ] || python research/student_v1/oracle.py fit --out "runs/student/oracle/$1" "${@:2}"
         for exec in 8 4; do
-            python models/student/oracle.py evaluate "runs/student/oracle/$1/oracle.pt" --episodes 60 --exec "$exec"
+            python research/student_v1/oracle.py evaluate "runs/student/oracle/$1/oracle.pt" --episodes 60 --exec "$exec"
         done
     done
     for noise in 0.5 1 1.5 2 3; do  # how precisely perception must place the object
-        python models/student/oracle.py evaluate runs/student/oracle/hand_24k/oracle.pt --episodes 60 --exec 4 \
+        python research/student_v1/oracle.py evaluate runs/student/oracle/hand_24k/oracle.pt --episodes 60 --exec 4 \
             --facts-noise-cm "$noise"
     done
     finetune gt_hp_8k runs/sim/demos_seen.zarr gt 1 --hand-pose &
@@ -275,7 +275,7 @@ handpose() {
             cell "$name" "runs/student/$name.onnx" none clean "$objects" 180 runs/table2/key
         done
     done
-    python models/student/diagnose.py locate student:runs/student/gt_hpo_16k.onnx \
+    python research/student_v1/diagnose.py locate student:runs/student/gt_hpo_16k.onnx \
         --checkpoint runs/student/gt_hpo_16k/ckpt.pt --episodes 30
     # longer training helps the oracle: 8000 more steps from gt_hpo_16k (object loss 1, and 10 to sharpen the
     # object estimate), then 16000 more from the first, three times; options after finetune's own replace them (argparse)
@@ -288,7 +288,7 @@ handpose() {
     finetune gt_hpo_more_56k $hpo --init runs/student/gt_hpo_more_40k/ckpt.pt --steps 16000
     for name in gt_hpo_more_8k gt_hpo_obj10_8k gt_hpo_more_24k gt_hpo_more_40k gt_hpo_more_56k; do
         export_x4 "$name"
-        python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
+        python research/student_v1/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
             --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
         for objects in seen unseen; do
             cell "${name}_x4" "runs/student/${name}_x4.onnx" none clean "$objects" 180 runs/table2/key
@@ -311,7 +311,7 @@ measure() {  # name training-demos [WxH]: a hand-pose student's exec-4 ONNX, its
     export_x4 "$name"
     probe "$name" "runs/student/heldout_60${3:+_$3}.zarr"
     probe "$name" "$2"
-    python models/student/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
+    python research/student_v1/diagnose.py locate "student:runs/student/${name}_x4.onnx" \
         --checkpoint "runs/student/$name/ckpt.pt" --episodes 30
     for objects in seen unseen; do
         cell "${name}_x4" "runs/student/${name}_x4.onnx" none clean "$objects" 180 runs/table2/key
@@ -319,7 +319,7 @@ measure() {  # name training-demos [WxH]: a hand-pose student's exec-4 ONNX, its
 }
 
 moredata() {
-    # docs/student.md "The object estimate does not generalise": the handpose recipe (hand pose + object offset)
+    # docs/student.md@b8caf57 "The object estimate does not generalise": the handpose recipe (hand pose + object offset)
     # from scratch on the 3000 scripted demos, in one 36000-step cosine schedule, beside the same with the object
     # head's own reading of the object's offset from the hand (--hand-target --seen-offset); one core each
     demos_3k
@@ -353,7 +353,7 @@ table() {  # docs/table2.json plus the cells in runs/table2 (rows in the order o
 }
 
 sixk() {
-    # docs/student.md "6000 demos": moredata's --seen-offset student on twice the demos, the same 36000 steps; one
+    # docs/student.md@b8caf57 "6000 demos": moredata's --seen-offset student on twice the demos, the same 36000 steps; one
     # run on 2 threads (6000 demos' depth is 12 GB in memory, two runs at once would not fit in 24 GB)
     demos_3k
     grow_demos runs/sim/demos_seen_3k.zarr runs/sim/demos_seen_6k.zarr 6000
@@ -429,14 +429,14 @@ ddgb4k() {
 }
 
 sensor() {  # [N]
-    # docs/student.md "Trained on the sensor itself": `ddgb6k`'s two fine-tunes (same start, steps, lr) on what the
+    # docs/student.md@b8caf57 "Trained on the sensor itself": `ddgb6k`'s two fine-tunes (same start, steps, lr) on what the
     # stereo sensor showed at each step of the first N demos (seeds 0..: collect replays demos_seen.zarr's episodes
     # and keeps both depths), a student no generator of this sensor can beat; not a baseline (it trains on the
     # evaluation's sensor), the ceiling of the DDG (b) route
     local n=${1:-1000} demos=runs/sim/demos_seen_stereo.zarr name=sensor_hpos_more_12k
     python -m trainer collect --episodes "$n" --seed 0 --sensor stereo --workers 2 --out $demos
     fine_tunes sensor $demos sensor 2 --episodes "$n"
-    python models/student/diagnose.py locate scripted --checkpoint "runs/student/$name/ckpt.pt" --episodes 30 \
+    python research/student_v1/diagnose.py locate scripted --checkpoint "runs/student/$name/ckpt.pt" --episodes 30 \
         --sensor stereo
     key "${name}_x4"
 }
@@ -476,27 +476,27 @@ wrist_measures() {  # name: the exec-4 export of runs/student/NAME, its clean ce
     for objects in seen unseen; do
         cell "$1_x4" "runs/student/$1_x4.onnx" none clean "$objects" 180 runs/table2/key
     done
-    python models/student/diagnose.py turn "student:runs/student/$1_x4.onnx" --episodes 60 \
+    python research/student_v1/diagnose.py turn "student:runs/student/$1_x4.onnx" --episodes 60 \
         > "runs/table2/turn_$1.log" 2>&1
-    python models/student/diagnose.py copycat "runs/student/$1_x4.onnx" --demos runs/student/heldout_60.zarr \
+    python research/student_v1/diagnose.py copycat "runs/student/$1_x4.onnx" --demos runs/student/heldout_60.zarr \
         > "runs/table2/copycat_$1.log" 2>&1
 }
 
-turn6k() {  # docs/student.md "The wrist's turn": the best GT student given --seen-turn (the object head reads the
+turn6k() {  # docs/student.md@b8caf57 "The wrist's turn": the best GT student given --seen-turn (the object head reads the
     # object's yaw from the fingers and the state encoder reads that), 12000 steps from it
     finetune gt6k_hpost_12k runs/sim/demos_seen_6k.zarr gt 2 $HPOS --seen-turn --steps 12000 \
         --init runs/student/gt6k_hpos_more_12k/ckpt.pt
     wrist_measures gt6k_hpost_12k
 }
 
-onefr6k() {  # docs/student.md "The wrist's turn": the best GT student reading one depth frame instead of three
+onefr6k() {  # docs/student.md@b8caf57 "The wrist's turn": the best GT student reading one depth frame instead of three
     # (--obs-horizon 1 --init folds the older frames' first-layer weights into it), 12000 steps
     finetune gt6k_hpos1_12k runs/sim/demos_seen_6k.zarr gt 2 $HPOS --obs-horizon 1 --steps 12000 \
         --init runs/student/gt6k_hpos_more_12k/ckpt.pt
     wrist_measures gt6k_hpos1_12k
 }
 
-wrist() {  # docs/student.md "The wrist's turn": 1000 demos whose wrist starts anywhere in +-1.5 rad (the default
+wrist() {  # docs/student.md@b8caf57 "The wrist's turn": 1000 demos whose wrist starts anywhere in +-1.5 rad (the default
     # +-0.05 lets the wrist's angle tell a student which way the expert turns it), the best GT student fine-tuned
     # 12000 steps on them; then the same from turn6k's --seen-turn student
     python -m trainer collect --episodes 1000 --objects seen --seed 50000 --wrist-noise 1.5 --workers 2 \
@@ -509,7 +509,7 @@ wrist() {  # docs/student.md "The wrist's turn": 1000 demos whose wrist starts a
     wrist_measures wristturn_hpos_12k
 }
 
-wrist6k() {  # docs/student.md "The wrist's turn": `wrist`'s demos grown to 6000, all with the wrist started
+wrist6k() {  # docs/student.md@b8caf57 "The wrist's turn": `wrist`'s demos grown to 6000, all with the wrist started
     # anywhere, and a --seen-turn student trained on them from scratch with `sixk`'s schedule, so that no proxy is there
     # to learn; collect resumes a partial store. Stopped at step 20000 of 36000 (2026-11-25): its head read the yaw
     # from the fingers at chance at the first steps (the fingers are out of view and may point anywhere), so the
@@ -521,7 +521,7 @@ wrist6k() {  # docs/student.md "The wrist's turn": `wrist`'s demos grown to 6000
     wrist_measures wristturn6k_36k
 }
 
-yaw6k() {  # docs/student.md "The wrist's turn": wrist6k's demos and schedule with --seen-yaw instead of --seen-turn:
+yaw6k() {  # docs/student.md@b8caf57 "The wrist's turn": wrist6k's demos and schedule with --seen-yaw instead of --seen-turn:
     # the head reads the object's yaw on the table, which depth shows, and the network turns it into the fingers'
     # frame by its forward kinematics
     fit yaw6k_36k runs/sim/demos_seen_wrist6k.zarr gt 2 36000 --lr 3e-4 --hand-pose --object-offset \
@@ -529,14 +529,14 @@ yaw6k() {  # docs/student.md "The wrist's turn": wrist6k's demos and schedule wi
     wrist_measures yaw6k_36k
 }
 
-yaw6k_onefr() {  # docs/student.md "From scratch, without the proxy": yaw6k fine-tuned 12000 steps reading one depth
+yaw6k_onefr() {  # docs/student.md@b8caf57 "From scratch, without the proxy": yaw6k fine-tuned 12000 steps reading one depth
     # frame (--obs-horizon 1 --init folds the older frames' weights into it), so that the frames' motion is gone
     finetune yaw6k_1fr_12k runs/sim/demos_seen_wrist6k.zarr gt 2 $HPOS --seen-yaw --obs-horizon 1 --steps 12000 \
         --init runs/student/yaw6k_36k/ckpt.pt
     wrist_measures yaw6k_1fr_12k
 }
 
-keyframe() {  # docs/student.md "The wrist's turn": the best GT student fine-tuned 12000 steps with the steps where
+keyframe() {  # docs/student.md@b8caf57 "The wrist's turn": the best GT student fine-tuned 12000 steps with the steps where
     # the expert's action changes (which way to turn, when to close) drawn more often (--keyframe-weight 10: the
     # first two steps of an episode make 8 % of the draws instead of 3 %)
     finetune gt6k_hpokf_12k runs/sim/demos_seen_6k.zarr gt 2 $HPOS --keyframe-weight 10 --steps 12000 \
@@ -544,7 +544,7 @@ keyframe() {  # docs/student.md "The wrist's turn": the best GT student fine-tun
     wrist_measures gt6k_hpokf_12k
 }
 
-velocity() {  # docs/student.md "The first step's turn": moredata's gt3k_hpos_36k again (on 2 threads: runs/ had
+velocity() {  # docs/student.md@b8caf57 "The first step's turn": moredata's gt3k_hpos_36k again (on 2 threads: runs/ had
     # been lost) beside the same student whose denoiser predicts the velocity; who decides the first turn in
     # each denoiser, and wrist_measures with both DDIM spacings. Run in part on 2026-11-25: the fits, decides, both
     # _x4 files' clean cells, gt3k_hpos_v_36k_x4t's seen cell and gt3k_hpos_36k_x4's copycat; not yet the rest
@@ -555,7 +555,7 @@ velocity() {  # docs/student.md "The first step's turn": moredata's gt3k_hpos_36
     python -m trainer student fit $common --prediction v_prediction --out runs/student/gt3k_hpos_v_36k
     heldout_60
     for name in gt3k_hpos_36k gt3k_hpos_v_36k; do
-        python models/student/diagnose.py decides --checkpoint "runs/student/$name/ckpt.pt" \
+        python research/student_v1/diagnose.py decides --checkpoint "runs/student/$name/ckpt.pt" \
             --demos runs/sim/demos_seen_3k.zarr --episodes 600 > "runs/table2/decides_$name.log" 2>&1
         wrist_measures "$name"
         python -m export "runs/student/$name/ckpt.pt" --ddim-steps 4 --ddim-spacing trailing --exec-horizon 4 \
@@ -563,12 +563,12 @@ velocity() {  # docs/student.md "The first step's turn": moredata's gt3k_hpos_36
         for objects in seen unseen; do
             cell "${name}_x4t" "runs/student/${name}_x4t.onnx" none clean "$objects" 180 runs/table2/key
         done
-        python models/student/diagnose.py copycat "runs/student/${name}_x4t.onnx" \
+        python research/student_v1/diagnose.py copycat "runs/student/${name}_x4t.onnx" \
             --demos runs/student/heldout_60.zarr > "runs/table2/copycat_${name}_x4t.log" 2>&1
     done
 }
 
-velocity_yaw() {  # docs/student.md "The first step's turn": both velocity students fine-tuned 12000 steps with a yaw
+velocity_yaw() {  # docs/student.md@b8caf57 "The first step's turn": both velocity students fine-tuned 12000 steps with a yaw
     # reading (--seen-yaw: its new state inputs start at zero weight), one thread each, side by side; who decides
     finetune gt3k_hposy_v_12k runs/sim/demos_seen_3k.zarr gt 1 $HPOS --seen-yaw --steps 12000 \
         --prediction v_prediction --init runs/student/gt3k_hpos_v_36k/ckpt.pt &
@@ -576,12 +576,12 @@ velocity_yaw() {  # docs/student.md "The first step's turn": both velocity stude
         --init runs/student/gt3k_hpos_36k/ckpt.pt
     wait
     for name in gt3k_hposy_12k gt3k_hposy_v_12k; do
-        python models/student/diagnose.py decides --checkpoint "runs/student/$name/ckpt.pt" \
+        python research/student_v1/diagnose.py decides --checkpoint "runs/student/$name/ckpt.pt" \
             --demos runs/sim/demos_seen_3k.zarr --episodes 600 > "runs/table2/decides_$name.log" 2>&1
     done
 }
 
-firstframe() {  # docs/student.md "The episode's first frame": velocity's v-prediction student again with the episode's
+firstframe() {  # docs/student.md@b8caf57 "The episode's first frame": velocity's v-prediction student again with the episode's
     # first depth frame stacked before the last three (the object before the hand covers it), then `measure`;
     # the same measures of gt3k_hpos_v_36k beside it. Run on 2026-11-25: it stopped at `locate` on a missing
     # editable install; its cells, both `locate`s and the baseline's held-out probe ran by hand with these commands
@@ -592,7 +592,7 @@ firstframe() {  # docs/student.md "The episode's first frame": velocity's v-pred
     measure gt3k_hpos_v_36k runs/sim/demos_seen_3k.zarr
 }
 
-ddgaf3k() {  # docs/student.md "The episode's first frame": ddga6k's two fine-tunes on DDG (a) depth of the first
+ddgaf3k() {  # docs/student.md@b8caf57 "The episode's first frame": ddga6k's two fine-tunes on DDG (a) depth of the first
     # 1000 demos, from firstframe's student (velocity, first frame, 3000 demos), and its cells under both sensors
     ddg_depth models/ddg runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_a.zarr
     START=gt3k_hposf_v_36k fine_tunes ddgaf3k runs/sim/demos_seen_ddg_a.zarr ddg 2 --prediction v_prediction \
@@ -610,7 +610,7 @@ both_sensors() {  # name: the exec-4 file runs/student/NAME.onnx under stereo, t
     done
 }
 
-first_turn_fit() {  # docs/student.md "The first step's turn, read from the yaw": does the denoiser fit the first
+first_turn_fit() {  # docs/student.md@b8caf57 "The first step's turn, read from the yaw": does the denoiser fit the first
     # step's turn on its own training demos when a head reads it the object's yaw? 300 demos, 6000 steps from
     # scratch, epsilon beside velocity (one thread each), each judged on its training demos and the held-out ones
     [ -d runs/student/demos_300.zarr ] || python -m trainer collect --episodes 300 --objects seen --workers 2 \
@@ -625,14 +625,14 @@ first_turn_fit() {  # docs/student.md "The first step's turn, read from the yaw"
     wait
     for p in epsilon v_prediction; do
         python -m export "runs/student/yaw300_$p/ckpt.pt" --ddim-steps 4 --out "runs/student/yaw300_$p.onnx"
-        python models/student/diagnose.py copycat "runs/student/yaw300_$p.onnx" --demos runs/student/demos_300.zarr \
+        python research/student_v1/diagnose.py copycat "runs/student/yaw300_$p.onnx" --demos runs/student/demos_300.zarr \
             --checkpoint "runs/student/yaw300_$p/ckpt.pt" > "runs/table2/copycat_yaw300_${p}_train.log" 2>&1
-        python models/student/diagnose.py copycat "runs/student/yaw300_$p.onnx" --demos runs/student/heldout_60.zarr \
+        python research/student_v1/diagnose.py copycat "runs/student/yaw300_$p.onnx" --demos runs/student/heldout_60.zarr \
             --checkpoint "runs/student/yaw300_$p/ckpt.pt" > "runs/table2/copycat_yaw300_${p}_heldout.log" 2>&1
     done
 }
 
-yaw_v() {  # docs/student.md "The first step's turn, read from the yaw": `velocity`'s velocity student with one
+yaw_v() {  # docs/student.md@b8caf57 "The first step's turn, read from the yaw": `velocity`'s velocity student with one
     # flag more, --seen-yaw (the head reads the object's yaw from the start), then who decides its first turn and
     # wrist_measures, and its reading on the held-out demos
     demos_3k
@@ -640,15 +640,15 @@ yaw_v() {  # docs/student.md "The first step's turn, read from the yaw": `veloci
     python -m trainer student fit --demos runs/sim/demos_seen_3k.zarr --depth-source gt --object-loss 1 \
         --steps 36000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 \
         --ckpt-every 1000 $HPOS --prediction v_prediction --seen-yaw --out runs/student/gt3k_hposy_v_36k
-    python models/student/diagnose.py decides --checkpoint runs/student/gt3k_hposy_v_36k/ckpt.pt \
+    python research/student_v1/diagnose.py decides --checkpoint runs/student/gt3k_hposy_v_36k/ckpt.pt \
         --demos runs/sim/demos_seen_3k.zarr --episodes 600 > runs/table2/decides_gt3k_hposy_v_36k.log 2>&1
     wrist_measures gt3k_hposy_v_36k
-    python models/student/diagnose.py copycat runs/student/gt3k_hposy_v_36k_x4.onnx \
+    python research/student_v1/diagnose.py copycat runs/student/gt3k_hposy_v_36k_x4.onnx \
         --demos runs/student/heldout_60.zarr --checkpoint runs/student/gt3k_hposy_v_36k/ckpt.pt \
         > runs/table2/copycat_gt3k_hposy_v_36k_reading.log 2>&1
 }
 
-finer() {  # docs/student.md "Finer pixels": `velocity`'s velocity student on 3000 demos whose depth is 192x144 of
+finer() {  # docs/student.md@b8caf57 "Finer pixels": `velocity`'s velocity student on 3000 demos whose depth is 192x144 of
     # the same 400x300 crop (1.5x finer pixels than 128x96), the same recipe and budget, then `measure` at 192x144
     [ -d runs/sim/demos_seen_3k_192.zarr ] || python -m trainer collect --episodes 3000 --seed 0 --workers 2 \
         --resolution 192x144 --out runs/sim/demos_seen_3k_192.zarr
@@ -658,7 +658,7 @@ finer() {  # docs/student.md "Finer pixels": `velocity`'s velocity student on 30
     measure gt3k192_hpos_v_36k runs/sim/demos_seen_3k_192.zarr 192x144
 }
 
-ddga192() {  # [N]: docs/student.md "DDG (a) at finer pixels": ddga6k's two fine-tunes on DDG (a) depth of the first
+ddga192() {  # [N]: docs/student.md@b8caf57 "DDG (a) at finer pixels": ddga6k's two fine-tunes on DDG (a) depth of the first
     # N (default 1000) demos at 192x144 (the generator runs at its 128x96 and its holes are carried back), from
     # finer's velocity student, then the stereo and clean cells; runs are named ddga192 (N 1000) or ddga192_N
     local n=${1:-1000} prefix=ddga192
@@ -669,13 +669,13 @@ ddga192() {  # [N]: docs/student.md "DDG (a) at finer pixels": ddga6k's two fine
     both_sensors "${prefix}_hpos_more_12k_x4"
 }
 
-ddga192_short() {  # docs/student.md "A shorter DDG (a) fine-tune": ddga192's first fine-tune alone (8000 steps from
+ddga192_short() {  # docs/student.md@b8caf57 "A shorter DDG (a) fine-tune": ddga192's first fine-tune alone (8000 steps from
     # finer's student, the 1000 demos), exported exec-4 like the others, under both sensors
     export_x4 ddga192_hpos_8k
     both_sensors ddga192_hpos_8k_x4
 }
 
-mix192() {  # [SHARE]: docs/student.md "A shorter DDG (a) fine-tune": ddga192_short's fine-tune with SHARE (default
+mix192() {  # [SHARE]: docs/student.md@b8caf57 "A shorter DDG (a) fine-tune": ddga192_short's fine-tune with SHARE (default
     # 0.5) of its samples on the same demos' clean depth (--gt-share), under both sensors
     local share=${1:-0.5}
     local name=mix192_${share/./}_hpos_8k

@@ -1,4 +1,4 @@
-"""``python -m trainer.sim.depth_grid``: a PNG grid of what the simulated D455 sees in randomised episodes.
+"""``python research/depth_grid.py``: a PNG grid of what the simulated D455 sees in randomised episodes.
 
 Each row is one episode (random object, dynamics, camera pose and crop window); columns are the full
 848x480 frame with the crop window drawn on it, then the policy-resolution frame at three moments of the
@@ -71,7 +71,7 @@ def render_grid(out: Path, episodes: int = 4, seed: int = 100) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m trainer.sim.depth_grid", description=__doc__,
+    p = argparse.ArgumentParser(prog="python research/depth_grid.py", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, default=Path("docs/depth_grid.png"), help="PNG path")
     p.add_argument("--episodes", type=int, default=4, help="rows (randomised episodes)")
