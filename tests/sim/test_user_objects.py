@@ -128,7 +128,7 @@ def test_builtin_episodes_are_those_before_user_objects_were_loaded_by_mujoco(wo
 
 def test_evaluate_and_collect_take_user_objects_by_path(tmp_path: Path, capsys) -> None:
     from trainer.collect import main as collect_main
-    from trainer.evaluate import main as evaluate_main
+    from trainer.eval.success import main as evaluate_main
 
     kinds = [str(DATA / "capsule_fromto.xml"), str(DATA / "hexbar.obj")]
     result = tmp_path / "eval.json"
@@ -142,7 +142,7 @@ def test_evaluate_and_collect_take_user_objects_by_path(tmp_path: Path, capsys) 
 
 
 def test_evaluate_refuses_an_unusable_file_in_one_line(tmp_path: Path, capsys) -> None:
-    from trainer.evaluate import main as evaluate_main
+    from trainer.eval.success import main as evaluate_main
 
     wide = _write(tmp_path, '<body><geom type="box" size="0.06 0.05 0.02"/></body>')
     assert evaluate_main(["--episodes", "1", "--workers", "1", "--objects", wide]) == 2
