@@ -103,6 +103,17 @@ def test_a_file_mujoco_cannot_parse_is_refused_in_one_line(tmp_path: Path) -> No
     assert "\n" not in str(err.value)
 
 
+def test_kinds_are_selected_by_group_or_list_and_each_checked_before_any_work(tmp_path: Path) -> None:
+    assert objects.select_kinds("seen") == objects.GROUPS["seen"]
+    assert objects.select_kinds(f"cube,,{DATA / 'hexbar.obj'}") == ("cube", str(DATA / "hexbar.obj"))
+    with pytest.raises(objects.ObjectError, match="no object kinds in ','"):
+        objects.select_kinds(",")
+    with pytest.raises(objects.UnknownObjectError, match="'dragonfruit'"):
+        objects.select_kinds("cube,dragonfruit")
+    with pytest.raises(objects.MissingAssetError, match="does not exist"):
+        objects.select_kinds(str(tmp_path / "gone.stl"))
+
+
 BUILTIN_REFERENCE = {  # kind, seed: half extent, object position after 0.5 s, first 3 joints; before issue 46
     ("banana", 5): ([0.09774877748993396, 0.034328009770575686, 0.02251479288666156],
                     [0.5915010193229461, 0.1231757796875836, 0.7679644441654336],
