@@ -168,6 +168,16 @@ def resolve(name_or_path: str, category_id: int = 13) -> AnyObject:
     return _measure(path, category_id)
 
 
+def select_kinds(spec: str) -> tuple[str, ...]:
+    """Kinds named by ``spec`` (a group or a comma list), each checked to exist before any work starts."""
+    kinds = GROUPS[spec] if spec in GROUPS else tuple(s for s in spec.split(",") if s)
+    if not kinds:
+        raise ObjectError(f"no object kinds in {spec!r}")
+    for kind in kinds:
+        resolve(kind)
+    return kinds
+
+
 def _measure(path: Path, category_id: int) -> UserObject:
     """Load the object alone on a table, measure its bounds and check that the world can use it."""
     name = "".join(c if c.isalnum() else "_" for c in path.name).lower()  # a.xml and a.obj differ

@@ -86,3 +86,19 @@ def write_synthetic_demos(path: Path, episodes: int = 2, steps: int = 12, seed: 
 def tiny_demos(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Two synthetic 12-step episodes in a demo store (see ``write_synthetic_demos``)."""
     return write_synthetic_demos(tmp_path_factory.mktemp("demos") / "demos.zarr")
+
+
+@pytest.fixture(scope="session")
+def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A tiny untrained DDG model directory (real ONNX export): for the generator's tests and the realism
+    measurements that run it."""
+    import torch
+
+    from trainer.ddg.graft import HOLE_THRESHOLD
+    from trainer.ddg.model import UNetConfig, build_unet, save_model
+
+    torch.manual_seed(0)
+    cfg = UNetConfig(channels=(8, 8, 16))
+    out = tmp_path_factory.mktemp("ddg") / "model"
+    save_model(out, build_unet(cfg).eval(), cfg, DepthSpec(), {"hole_threshold": HOLE_THRESHOLD})
+    return out

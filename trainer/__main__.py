@@ -7,11 +7,11 @@ import sys
 
 COMMANDS = {
     "collect": ("trainer.collect", "record demos from a teacher into a zarr store"),
-    "evaluate": ("trainer.evaluate", "closed-loop success rate of a policy in the simulated world"),
+    "evaluate": ("trainer.eval.success", "closed-loop success rate of a policy in the simulated world"),
     "teacher": ("trainer.teacher.cli", "train the PPO teacher on privileged state"),
     "ddg": ("trainer.ddg.cli", "Diffusion Depth Generator: fit | generate | metrics | paired | bench"),
     "student": ("trainer.student.cli", "diffusion-policy student: fit | init | probe"),
-    "table": ("trainer.table", "many evaluate results as one comparison table (success, 95 % CI)"),
+    "table": ("trainer.eval.table", "many evaluate results as one comparison table (success, 95 % CI)"),
 }
 
 

@@ -16,10 +16,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hil_sim.objects import ObjectError
+from hil_sim.objects import ObjectError, select_kinds
 from runtime.preprocess import DepthSpec
 from trainer.dataset import DatasetError, DemoStore, EpisodeRecord, sizes
-from trainer.evaluate import object_list
 from trainer.policies import NEEDS_DEPTH, PolicyError, depth_spec, parse
 from trainer.sim.env import EnvConfig
 from trainer.sim.rollout import Job, Rollout, rollouts
@@ -82,7 +81,7 @@ def _record(r: Rollout, spec_shape: tuple[int, int]) -> EpisodeRecord:
 def collect(args: argparse.Namespace) -> dict:
     teacher, _ = parse(args.teacher)
     make_sensor(args.sensor)  # an unknown sensor is refused before a store is made
-    kinds = object_list(args.objects)
+    kinds = select_kinds(args.objects)
     spec = DepthSpec(out_width=args.resolution[0], out_height=args.resolution[1])
     read = depth_spec(args.teacher)  # opens a student file once
     if NEEDS_DEPTH[teacher] and read != spec:  # a takeover student

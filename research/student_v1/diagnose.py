@@ -406,7 +406,7 @@ def sensor_parts(seen: np.ndarray, clean: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def parts(policy: str, ckpt_path: str, episodes: int, sensor_spec: str) -> None:
-    from trainer.ddg.paired import wrong_depth
+    from trainer.eval.paired_depth import wrong_depth
     from trainer.sim.sensors import make_sensor
 
     head, sensor = ObjectEstimate(ckpt_path), make_sensor(sensor_spec)

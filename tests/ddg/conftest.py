@@ -1,4 +1,5 @@
-"""DDG test fixtures: a tiny untrained model directory (real ONNX export) and tiny synthetic demo stores."""
+"""DDG test fixtures: clean synthetic scenes and tiny synthetic demo stores (the tiny DDG model is shared:
+``tests/conftest.py``)."""
 
 from __future__ import annotations
 
@@ -19,20 +20,6 @@ def scene(rng: np.random.Generator, h: int = 96, w: int = 128) -> np.ndarray:
         rows, cols = int(rng.integers(8, 20)), int(rng.integers(8, 20))
         depth[top:top + rows, left:left + cols] -= rng.uniform(40, 150)
     return np.rint(depth).astype(np.uint16)
-
-
-@pytest.fixture(scope="session")
-def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    import torch
-
-    from trainer.ddg.graft import HOLE_THRESHOLD
-    from trainer.ddg.model import UNetConfig, build_unet, save_model
-
-    torch.manual_seed(0)
-    cfg = UNetConfig(channels=(8, 8, 16))
-    out = tmp_path_factory.mktemp("ddg") / "model"
-    save_model(out, build_unet(cfg).eval(), cfg, DepthSpec(), {"hole_threshold": HOLE_THRESHOLD})
-    return out
 
 
 @pytest.fixture

@@ -10,7 +10,7 @@ import pytest
 from runtime.preprocess import DepthSpec, crop_resize
 from trainer.ddg.bank import fused_frames
 from trainer.ddg.data import load_real_dir
-from trainer.ddg.metrics import _crops
+from trainer.eval.realism import _crops
 from trainer.sim.capture import CaptureError, capture, main
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import expert_scenes

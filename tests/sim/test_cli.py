@@ -1,4 +1,4 @@
-"""``python -m trainer collect`` and ``evaluate`` on tiny budgets: outputs, resume, kill -9, bad input."""
+"""``python -m trainer collect`` on tiny budgets: outputs, resume, kill -9, bad input; the command menu."""
 
 from __future__ import annotations
 
@@ -15,8 +15,6 @@ import pytest
 
 from trainer.collect import main as collect_main
 from trainer.dataset import DemoStore
-from trainer.evaluate import first_close, median_interval, table, wilson_interval
-from trainer.evaluate import main as evaluate_main
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -80,7 +78,6 @@ def test_dart_demos_record_their_noise_and_a_negative_one_is_refused(tmp_path, c
 
 
 def test_wide_wrist_demos_start_their_wrist_anywhere_in_the_range(tmp_path, capsys) -> None:
-    import json
 
     from hil_sim.world import HOME_Q
 
@@ -101,62 +98,6 @@ def test_unwritable_output_is_one_error_line(tmp_path, capsys) -> None:
     assert err.startswith("error: cannot write a demo store") and "\n" not in err
 
 
-def test_evaluate_writes_the_json_contract(tmp_path, capsys) -> None:
-    path = tmp_path / "eval.json"
-    assert evaluate_main(["--episodes", "2", "--objects", "cube,peach", "--workers", "1", "--json",
-                          str(path)]) == 0
-    result = json.loads(path.read_text())
-    assert result["episodes"] == 2 and set(result["per_object"]) == {"cube", "peach"}
-    assert 0.0 <= result["success_rate"] <= 1.0
-    assert result["success_rate"] == pytest.approx(np.mean(list(result["per_object"].values())))
-    lo, hi = result["ci95"]
-    assert 0.0 <= lo <= result["success_rate"] <= hi <= 1.0 and hi - lo > 0.3  # 2 episodes say little
-    # The scripted expert closes centred over the object, the grasp site 1-5 cm above its centre.
-    closes = result["first_close"]
-    assert closes["episodes"] == 2 and 20 < closes["median_step"] < 100
-    assert closes["horizontal_cm_median"] < 1.0 and -5.0 < closes["offset_cm_mean"][2] < -1.0
-    lo, hi = closes["horizontal_cm_median_ci95"]
-    assert lo <= closes["horizontal_cm_median"] <= hi
-    out = capsys.readouterr().out
-    assert "first close in 2 episodes" in out and out.rstrip().splitlines()[-1].startswith("ALL")
-
-
-@pytest.mark.parametrize("successes,n", [(0, 10), (5, 10), (10, 10), (1, 30), (81, 263)])
-def test_wilson_interval_matches_scipy(successes, n) -> None:
-    from scipy.stats import binomtest
-
-    expected = binomtest(successes, n).proportion_ci(method="wilson")
-    np.testing.assert_allclose(wilson_interval(successes, n), (expected.low, expected.high), atol=1e-4)
-
-
-def test_median_interval_holds_the_median_narrows_with_more_episodes_and_is_seeded() -> None:
-    distances = np.random.default_rng(3).exponential(10.0, 400)
-    small, large = median_interval(distances[:40]), median_interval(distances)
-    assert small[0] <= np.median(distances[:40]) <= small[1] and large[0] <= np.median(distances) <= large[1]
-    assert large[1] - large[0] < small[1] - small[0]
-    assert median_interval(distances) == large and median_interval(distances[:1]) is None
-
-
-def test_the_table_gives_the_closing_interval_only_when_there_is_one() -> None:
-    def printed(offsets: list) -> str:
-        result = {"per_object": {"cube": 0.0}, "ci95": [0.0, 0.5], "success_rate": 0.0, "episodes": 4,
-                  "policy": "p", "sensor": "clean", "restore": "none",
-                  "first_close": first_close([(30, np.array(o)) for o in offsets])}
-        return table(result)
-
-    one, three = printed([[0.03, 0.04, 0.0]]), printed([[0.03, 0.04, 0], [0.0, 0.1, 0], [0.06, 0.08, 0]])
-    assert "5.0 cm apart horizontally (median)" in one and "None" not in one
-    assert "10.0 cm apart horizontally (median; 95 % CI [" in three
-
-
-def test_first_close_offsets_print_as_rounded_centimetres() -> None:
-    closes = first_close([(30, np.array([0.0328, -0.0328, 0.0], dtype=np.float32))])
-    assert closes["offset_cm_mean"] == [3.28, -3.28, 0.0]
-    result = {"per_object": {}, "ci95": [0.0, 1.0], "success_rate": 0.0, "episodes": 1, "policy": "p",
-              "sensor": "clean", "restore": "none", "first_close": closes}
-    assert "[3.28, -3.28, 0.0] cm" in table(result)
-
-
 def test_trainer_help_goes_to_stdout_and_an_unknown_command_is_named() -> None:
     def trainer(*argv: str) -> subprocess.CompletedProcess:
         return subprocess.run([sys.executable, "-m", "trainer", *argv], cwd=REPO, capture_output=True,
@@ -165,15 +106,6 @@ def test_trainer_help_goes_to_stdout_and_an_unknown_command_is_named() -> None:
     helped, bogus = trainer("--help"), trainer("bogus")
     assert helped.returncode == 0 and "evaluate" in helped.stdout and helped.stderr == ""
     assert bogus.returncode == 2 and bogus.stderr.strip().endswith("error: unknown command 'bogus'")
-
-
-@pytest.mark.parametrize("argv,needle", [(["--objects", "dragonfruit"], "unknown object kind 'dragonfruit'"),
-                                         (["--policy", "magic"], "unknown policy 'magic'"),
-                                         (["--sensor", "fog"], "unknown sensor 'fog'")])
-def test_evaluate_bad_input_is_one_error_line(argv, needle, capsys) -> None:
-    assert evaluate_main(["--episodes", "1", "--workers", "1", *argv]) == 2
-    err = capsys.readouterr().err.strip()
-    assert needle in err and "\n" not in err
 
 
 @pytest.mark.slow

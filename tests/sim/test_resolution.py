@@ -12,7 +12,7 @@ from runtime.preprocess import DepthSpec
 from tests.conftest import TINY_STUDENT, write_synthetic_demos
 from trainer.collect import main as collect_main
 from trainer.dataset import DemoStore
-from trainer.evaluate import main as evaluate_main
+from trainer.eval.success import main as evaluate_main
 from trainer.policies import depth_spec
 
 COARSE = DepthSpec(out_height=24, out_width=32)

@@ -103,6 +103,17 @@ def test_a_file_mujoco_cannot_parse_is_refused_in_one_line(tmp_path: Path) -> No
     assert "\n" not in str(err.value)
 
 
+def test_kinds_are_selected_by_group_or_list_and_each_checked_before_any_work(tmp_path: Path) -> None:
+    assert objects.select_kinds("seen") == objects.GROUPS["seen"]
+    assert objects.select_kinds(f"cube,,{DATA / 'hexbar.obj'}") == ("cube", str(DATA / "hexbar.obj"))
+    with pytest.raises(objects.ObjectError, match="no object kinds in ','"):
+        objects.select_kinds(",")
+    with pytest.raises(objects.UnknownObjectError, match="'dragonfruit'"):
+        objects.select_kinds("cube,dragonfruit")
+    with pytest.raises(objects.MissingAssetError, match="does not exist"):
+        objects.select_kinds(str(tmp_path / "gone.stl"))
+
+
 BUILTIN_REFERENCE = {  # kind, seed: half extent, object position after 0.5 s, first 3 joints; before issue 46
     ("banana", 5): ([0.09774877748993396, 0.034328009770575686, 0.02251479288666156],
                     [0.5915010193229461, 0.1231757796875836, 0.7679644441654336],
@@ -128,7 +139,7 @@ def test_builtin_episodes_are_those_before_user_objects_were_loaded_by_mujoco(wo
 
 def test_evaluate_and_collect_take_user_objects_by_path(tmp_path: Path, capsys) -> None:
     from trainer.collect import main as collect_main
-    from trainer.evaluate import main as evaluate_main
+    from trainer.eval.success import main as evaluate_main
 
     kinds = [str(DATA / "capsule_fromto.xml"), str(DATA / "hexbar.obj")]
     result = tmp_path / "eval.json"
@@ -142,7 +153,7 @@ def test_evaluate_and_collect_take_user_objects_by_path(tmp_path: Path, capsys) 
 
 
 def test_evaluate_refuses_an_unusable_file_in_one_line(tmp_path: Path, capsys) -> None:
-    from trainer.evaluate import main as evaluate_main
+    from trainer.eval.success import main as evaluate_main
 
     wide = _write(tmp_path, '<body><geom type="box" size="0.06 0.05 0.02"/></body>')
     assert evaluate_main(["--episodes", "1", "--workers", "1", "--objects", wide]) == 2

@@ -14,11 +14,11 @@ SUBCOMMANDS = {
     "fit": ("trainer.ddg.train", "FitConfig", "fit", "train the DDG on real captures (DDPM, eq. 8)"),
     "generate": ("trainer.ddg.generate", "GenerateConfig", "generate",
                  "add depth_ddg / depth_ddg_nograft to a demo store"),
-    "metrics": ("trainer.ddg.metrics", "MetricsConfig", "run_metrics",
+    "metrics": ("trainer.eval.realism", "MetricsConfig", "run_metrics",
                 "realism of each depth source vs held-out real frames (Table I)"),
-    "paired": ("trainer.ddg.paired", "PairedConfig", "paired",
+    "paired": ("trainer.eval.paired_depth", "PairedConfig", "paired",
                "each source's depth against the exact depth of the same view (simulated captures)"),
-    "bench": ("trainer.ddg.bench", "BenchConfig", "bench",
+    "bench": ("trainer.eval.ddg_throughput", "BenchConfig", "bench",
               "generation throughput per session mode, batch and DDIM step count"),
 }
 

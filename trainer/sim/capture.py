@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from trainer.evaluate import object_list
+from hil_sim.objects import select_kinds
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import expert_scenes
 from trainer.sim.sensors import SceneSensor, SensorError, make_sensor
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.episodes < 1 or not args.steps or min(args.steps) < 0:
             raise CaptureError("need --episodes >= 1 and --steps >= 0")
-        n = capture(args.sensor, object_list(args.objects), args.episodes, tuple(sorted(set(args.steps))),
+        n = capture(args.sensor, select_kinds(args.objects), args.episodes, tuple(sorted(set(args.steps))),
                     args.seed, args.out)
     except (SensorError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)

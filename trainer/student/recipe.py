@@ -33,7 +33,7 @@ import torch
 from hil_sim.objects import GROUPS
 from runtime.preprocess import DepthSpec
 from trainer.dataset import DatasetError, DemoStore
-from trainer.evaluate import evaluate
+from trainer.eval.success import evaluate
 from trainer.sim.env import EnvConfig
 from trainer.student import checkpoint
 from trainer.student.argspec import add_dataclass_args, from_args

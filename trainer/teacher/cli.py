@@ -20,9 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hil_sim.objects import ObjectError
+from hil_sim.objects import ObjectError, select_kinds
 from trainer.config_docs import field_docs
-from trainer.evaluate import object_list
 from trainer.teacher.normaliser import NormaliserError
 from trainer.teacher.ppo import VEC_KINDS, TeacherConfig, TeacherError, make_vec_env, train
 from trainer.teacher.progress import plot_curves
@@ -70,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _fit(args: argparse.Namespace) -> int:
     values = {f.name: getattr(args, f.name) for f in dataclasses.fields(TeacherConfig) if f.name != "objects"}
-    config = TeacherConfig(objects=object_list(args.objects), **{**values, "net": tuple(values["net"])})
+    config = TeacherConfig(objects=select_kinds(args.objects), **{**values, "net": tuple(values["net"])})
     summary = train(config, args.out, resume=args.resume)
     plot_curves({args.out.name: args.out / "progress.csv"}, args.out / "learning_curve.png")
     print(json.dumps({k: v for k, v in summary.items() if k != "config"}, indent=2))
@@ -114,7 +113,7 @@ def _plot(args: argparse.Namespace) -> int:
 
 
 def _smoothness(args: argparse.Namespace) -> int:
-    kinds = object_list(args.objects)
+    kinds = select_kinds(args.objects)
     results = [measure(spec, kinds, args.episodes, seed=args.seed, workers=args.workers)
                for spec in args.policy]
     for r in results:

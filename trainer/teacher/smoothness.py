@@ -13,7 +13,7 @@ from functools import partial
 import numpy as np
 from tqdm import tqdm
 
-from trainer.evaluate import wilson_interval
+from trainer.eval.stats import wilson_interval
 from trainer.policies import Observation, make_policy
 from trainer.sim.env import EnvConfig, GraspEnv
 
@@ -39,7 +39,7 @@ def _episode(config: EnvConfig, spec: str, job: tuple[int, str]) -> tuple[str, b
 def measure(spec: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 10_000,
             workers: int = 2) -> dict:
     """Success per kind and mean squared joint acceleration of ``spec`` over ``episodes`` (kinds cycled,
-    seeds seed, seed+1, ... as in ``trainer.evaluate``)."""
+    seeds seed, seed+1, ... as in ``trainer.eval.success``)."""
     config = EnvConfig(objects=kinds, render_depth=False)
     jobs = [(seed + i, kinds[i % len(kinds)]) for i in range(episodes)]
     work = partial(_episode, config, spec)

@@ -1,4 +1,5 @@
-"""``python -m trainer.sim.sensor_compare``: what a student sees of the same scenes through each sensor model.
+"""``python -m trainer.eval.sensor_compare``: what a student sees of the same scenes through each sensor
+model.
 
 For randomised episodes of the chosen kinds, the scripted expert acts and, at the chosen steps, every sensor
 gives its policy-resolution frame through the evaluator's own path (``trainer.sim.rollout.observe``). Writes
@@ -20,8 +21,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from hil_sim.objects import select_kinds  # noqa: E402
 from runtime.preprocess import DepthSpec  # noqa: E402
-from trainer.evaluate import object_list  # noqa: E402
 from trainer.sim.env import EnvConfig, GraspEnv  # noqa: E402
 from trainer.sim.rollout import expert_scenes, observe  # noqa: E402
 from trainer.sim.sensors import SensorError, make_sensor  # noqa: E402
@@ -78,7 +79,7 @@ def picture(frames: list[dict[str, np.ndarray]], out: Path, rows: int = 6) -> No
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m trainer.sim.sensor_compare", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m trainer.eval.sensor_compare", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sensors", nargs="+", default=list(DEFAULT_SENSORS),
                    help="sensor specs, space-separated (a DDG spec may hold commas: "
@@ -96,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"the first sensor must be clean (the reference), got {specs[0]!r}")
         if args.episodes < 1 or min(args.steps) < 0:
             raise ValueError("need --episodes >= 1 and --steps >= 0")
-        frames = capture(object_list(args.objects), specs, args.episodes, tuple(args.steps), args.seed)
+        frames = capture(select_kinds(args.objects), specs, args.episodes, tuple(args.steps), args.seed)
     except (SensorError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -7,8 +7,7 @@ import numpy as np
 from tqdm import tqdm
 
 from runtime.preprocess import DepthSpec, crop_resize
-
-from .data import RealDataError, policy_crop
+from trainer.ddg.data import RealDataError, policy_crop
 
 VIEWS = ("policy", "matched")
 MATCHED_DISTANCE_M = (0.5, 1.0)
@@ -30,7 +29,7 @@ def from_demos(path: str, n: int) -> np.ndarray:
     """``n`` frames of ``data/depth`` evenly spread over the store."""
     import zarr
 
-    from .generate import DemoStoreError
+    from trainer.ddg.generate import DemoStoreError
 
     root = zarr.open_group(path, mode="r")
     if "data/depth" not in root:

@@ -1,11 +1,11 @@
-"""``trainer.sim.sensor_compare``: the statistics that explain what a sensor takes from the student."""
+"""``trainer.eval.sensor_compare``: the statistics that explain what a sensor takes from the student."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from trainer.sim.sensor_compare import main, statistics
+from trainer.eval.sensor_compare import main, statistics
 
 
 def test_statistics_separate_lost_pixels_in_and_beyond_the_policy_range():

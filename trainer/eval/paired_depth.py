@@ -1,6 +1,6 @@
 """``python -m trainer ddg paired``: each depth source against the exact depth of the same view.
 
-The realism metrics (``metrics``) compare distributions, and a grafted DDG scores near-perfectly there
+The realism metrics (``realism``) compare distributions, and a grafted DDG scores near-perfectly there
 while its depth is never wrong: grafting keeps the simulator's exact depth wherever no hole is predicted. A
 simulated capture (``python -m trainer.sim.capture``) carries the scene's exact depth beside the sensor's, so
 here each DDG is run on that exact depth and, with the sensor itself, judged pixel by pixel against it, in the
@@ -17,10 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from runtime.preprocess import DepthSpec, crop_resize
-
-from .baselines import randnoise
-from .data import POLICY_SPEC, RealDataError, RealFrame, load_real_dir
-from .sample import Generator
+from trainer.ddg.baselines import randnoise
+from trainer.ddg.data import POLICY_SPEC, RealDataError, RealFrame, load_real_dir
+from trainer.ddg.sample import Generator
 
 
 @dataclass(frozen=True)

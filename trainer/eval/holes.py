@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from .prior import fill_holes
+from trainer.ddg.prior import fill_holes
 
 EDGE_MM_PER_PX = 20.0
 """A depth step above this between neighbouring pixels (of the hole-filled depth) is an edge."""

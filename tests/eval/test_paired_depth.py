@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from trainer.ddg.data import RealDataError, RealFrame
-from trainer.ddg.paired import PairedConfig, hole_agreement, paired, policy_views, wrong_depth
+from trainer.eval.paired_depth import PairedConfig, hole_agreement, paired, policy_views, wrong_depth
 from trainer.sim.capture import capture
 
 

@@ -16,9 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .baselines import DEFAULT_MODEL
-from .sample import SESSION_MODES, Generator
-from .simframes import from_demos, rendered
+from trainer.ddg.baselines import DEFAULT_MODEL
+from trainer.ddg.sample import SESSION_MODES, Generator
+
+from .sim_frames import from_demos, rendered
 
 
 @dataclass(frozen=True)
@@ -32,7 +33,7 @@ class BenchConfig:
     batches: tuple[int, ...] = (1, 16)
     """Frames per Generator call."""
     modes: tuple[str, ...] = SESSION_MODES
-    """onnxruntime session modes (see ``sample.SESSION_MODES``)."""
+    """onnxruntime session modes (see ``trainer.ddg.sample.SESSION_MODES``)."""
     threads: int = 2
     """CPU cores per generator."""
     frames: int = 16

@@ -57,9 +57,9 @@ def plot_tsne(real: np.ndarray, sources: dict[str, np.ndarray], path: Path, seed
 
 
 def plot_holes(frames: dict[str, np.ndarray], stats: dict[str, dict], path: Path) -> None:
-    """Hole statistics per source (``holestats.hole_stats`` entries) side by side: per-frame hole fraction,
+    """Hole statistics per source (``holes.hole_stats`` entries) side by side: per-frame hole fraction,
     hole-size histogram, hole rate near depth edges vs in flat regions, holes per frame."""
-    from .holestats import SIZE_BINS
+    from .holes import SIZE_BINS
 
     names = list(frames)
     colours = matplotlib.colormaps["tab10"](np.arange(len(names)) % 10)

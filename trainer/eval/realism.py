@@ -20,12 +20,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .baselines import DEFAULT_MODEL, inpaint, randnoise
-from .data import POLICY_SPEC, RealDataError, load_real_dir, policy_crop, split
-from .features import JUDGE_CHANNELS, RandomEncoder, features, fid, kid
-from .holestats import hole_stats
-from .plots import plot_grid, plot_holes, plot_tsne
-from .simframes import from_demos, rendered, void_as_far
+from trainer.ddg.baselines import DEFAULT_MODEL, inpaint, randnoise
+from trainer.ddg.data import POLICY_SPEC, RealDataError, load_real_dir, policy_crop, split
+
+from .holes import hole_stats
+from .judge import JUDGE_CHANNELS, RandomEncoder, features, fid, kid
+from .realism_plots import plot_grid, plot_holes, plot_tsne
+from .sim_frames import from_demos, rendered, void_as_far
 
 
 @dataclass(frozen=True)
@@ -57,7 +58,7 @@ class MetricsConfig:
     views: str = "policy"
     """Simulated frames rendered (without --demos) from: policy (the robot's camera: the demos' view, with the
     void past the table) or matched (close views of the object at the real captures' range, 0.5-1.0 m, where
-    the scene differs less from theirs; trainer.ddg.simframes)."""
+    the scene differs less from theirs; trainer.eval.sim_frames)."""
     judge: str = "both"
     """What the judge sees: both (relative valid depth and the hole mask), holes (the hole mask alone: where
     the artifacts fall, the scene's depth hidden) or depth (relative valid depth alone, a hole reading 0)."""
@@ -203,7 +204,7 @@ def _crops(frames, which: np.ndarray, rng: np.random.Generator) -> Crops:
 def _ddg_sources(cfg: MetricsConfig, sim: np.ndarray) -> dict[str, np.ndarray]:
     if not cfg.model:
         return {}
-    from .sample import Generator
+    from trainer.ddg.sample import Generator
 
     gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, eta=cfg.eta)
     parts = [gen(sim[i:i + 64], np.arange(i, min(len(sim), i + 64))) for i in range(0, len(sim), 64)]

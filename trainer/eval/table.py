@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from hil_sim.objects import GROUPS
-from trainer.evaluate import wilson_interval
+from trainer.eval.stats import wilson_interval
 
 CELL_KEYS = ("success_rate", "successes", "episodes", "ci95", "closes_cm", "closes_cm_ci95", "source")
 

@@ -2,10 +2,11 @@ import numpy as np
 import pytest
 
 from runtime.preprocess import DepthSpec
-from trainer.ddg.features import RandomEncoder, encoder_input, features, fid, kid
-from trainer.ddg.holestats import hole_stats
-from trainer.ddg.metrics import bootstrap_ci, off_sim_mm
-from trainer.ddg.simframes import (
+from tests.ddg.conftest import scene
+from trainer.eval.holes import hole_stats
+from trainer.eval.judge import RandomEncoder, encoder_input, features, fid, kid
+from trainer.eval.realism import bootstrap_ci, off_sim_mm
+from trainer.eval.sim_frames import (
     MATCHED_DISTANCE_M,
     MATCHED_ELEVATION_DEG,
     MAX_VOID_FRACTION,
@@ -13,8 +14,6 @@ from trainer.ddg.simframes import (
     rendered,
     void_as_far,
 )
-
-from .conftest import scene
 
 
 def test_fid_and_kid_separate_distributions():

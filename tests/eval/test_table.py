@@ -7,7 +7,7 @@ import json
 import pytest
 
 from hil_sim.objects import GROUPS
-from trainer.table import TableError, build, main, markdown
+from trainer.eval.table import TableError, build, main, markdown
 
 
 def _result(tmp_path, name, *, sensor="clean", objects="seen", rate=0.5, restore="none"):

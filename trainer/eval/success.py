@@ -13,18 +13,17 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 from tqdm import tqdm
 
-from hil_sim.objects import GROUPS, ObjectError, resolve
+from hil_sim.objects import ObjectError, select_kinds
 from runtime.preprocess import RESTORE_METHODS
+from trainer.eval.stats import median_interval, wilson_interval
 from trainer.policies import NEEDS_DEPTH, PolicyError, depth_spec, parse
 from trainer.sim.env import EnvConfig
 from trainer.sim.rollout import Job, rollouts
@@ -50,27 +49,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def object_list(spec: str) -> tuple[str, ...]:
-    """Kinds named by ``spec`` (a group or a comma list), each checked to exist before any work starts."""
-    kinds = GROUPS[spec] if spec in GROUPS else tuple(s for s in spec.split(",") if s)
-    if not kinds:
-        raise ObjectError(f"no object kinds in {spec!r}")
-    for kind in kinds:
-        resolve(kind)
-    return kinds
-
-
-def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    """95 % Wilson score interval of a success rate: stays inside [0, 1] and is sensible at 0 or n
-    successes, where the normal approximation collapses to a point."""
-    if n < 1:
-        raise ValueError("a confidence interval needs at least one episode")
-    p, z2 = successes / n, z * z
-    centre = (p + z2 / (2 * n)) / (1 + z2 / n)
-    half = z * math.sqrt(p * (1 - p) / n + z2 / (4 * n * n)) / (1 + z2 / n)
-    return max(0.0, centre - half), min(1.0, centre + half)
-
-
 def evaluate(policy: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 10_000, workers: int = 1,
              sensor: str = "clean", restore: str = "none", randomise: bool = True) -> dict:
     kind, _ = parse(policy)
@@ -91,16 +69,6 @@ def evaluate(policy: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 
             "policy": policy, "sensor": sensor, "restore": restore, "objects": list(kinds), "seed": seed,
             "mean_steps": sum(steps) / max(1, len(steps)), "first_close": first_close(closes),
             "seconds": round(time.perf_counter() - start, 1)}
-
-
-def median_interval(values: np.ndarray) -> list[float] | None:
-    """95 % bootstrap (percentile) interval of the median, seeded so a result file is reproducible; None for
-    fewer than 2 values. Percentile rather than BCa: BCa's jackknife is degenerate for a median of ties."""
-    if len(values) < 2:
-        return None
-    res = stats.bootstrap((values,), np.median, n_resamples=2000, method="percentile",
-                          random_state=np.random.default_rng(0))
-    return [round(float(res.confidence_interval.low), 2), round(float(res.confidence_interval.high), 2)]
 
 
 def first_close(closes: list[tuple[int, np.ndarray]]) -> dict:
@@ -143,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
         parse(args.policy)
         make_sensor(args.sensor)
-        kinds = object_list(args.objects)
+        kinds = select_kinds(args.objects)
         result = evaluate(args.policy, kinds, args.episodes, seed=args.seed, workers=args.workers,
                           sensor=args.sensor, restore=args.restore, randomise=not args.no_randomise)
         if args.json:
