@@ -273,8 +273,8 @@ class ControlLoop:
             if self.clock() > end:
                 address, waited = self.robot.address, self.config.startup_timeout_s
                 raise RobotStalled(f"no robot state on {address} within {waited:g} s of start; is the driver "
-                                   "running? start it with `python -m runtime.franka_driver --backend "
-                                   f"franka|mujoco --bind {address}`")
+                                   f"running? start it with `python -m runtime.franka_driver --bind {address}` "
+                                   "(the simulated arm: `python -m hil_sim.driver`)")
 
     def _first_deadline(self) -> float:
         """Phase-lock the ticks to the camera. Cutoffs fall between frame arrivals, as far from any as the two
