@@ -44,7 +44,7 @@ import zmq
 
 from runtime.cameras import Camera, CameraEnded, CameraError, CameraStalled, Frame
 from runtime.policy import NanActionError, Policy, PolicyError
-from runtime.preprocess import RESTORE_METHODS, FrameStack, preprocess
+from runtime.preprocess import RESTORE_METHODS, FrameStack, policy_state, preprocess
 from runtime.protocol import DEFAULT_ROBOT, DOF, Encoder, Message, robot_endpoints, session_tag
 from runtime.transport import CurveKeys, Newest, connect, send
 
@@ -273,7 +273,7 @@ class ControlLoop:
             if self.clock() > end:
                 address, waited = self.robot.address, self.config.startup_timeout_s
                 raise RobotStalled(f"no robot state on {address} within {waited:g} s of start; is the driver "
-                                   f"running? start it with `python -m runtime.franka_driver --bind {address}` "
+                                   f"running? start it: `python -m runtime.franka_driver --bind {address}` "
                                    "(the simulated arm: `python -m hil_sim.driver`)")
 
     def _first_deadline(self) -> float:
@@ -395,8 +395,7 @@ class ControlLoop:
         if state["controller"] not in ("", self.robot.tag):  # our commands are being refused
             return None, {"not_controller": f"the driver executes session {state['controller']}, not this "
                                             f"runtime's ({self.robot.tag}): another process holds the arm"}
-        q = np.asarray(state["q"]) + self.policy.metadata.joint_offset_rad  # the angles it was trained on
-        return np.array([*q, state["gripper"]], dtype=np.float32), {}
+        return policy_state(state["q"], state["gripper"], self.policy.metadata.joint_offset_rad), {}
 
     def _infer(self, obs: np.ndarray, state: np.ndarray, tick: Tick) -> dict[str, str]:
         self._chunk = None

@@ -10,6 +10,8 @@ from hil_sim.driver_backend import MujocoBackend
 from hil_sim.world import HOME_Q, TABLE_Z, World
 from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET, panda_tcp
 from runtime.franka_driver.limits import Q_MAX, Q_MIN, READY_Q
+from runtime.metadata import PolicyMetadata
+from runtime.preprocess import DepthSpec, policy_state
 
 
 @pytest.fixture(scope="module")
@@ -50,3 +52,18 @@ def test_command_sets_actuator_targets_and_hold_freezes_at_measured_pose(world):
     assert np.allclose(world.data.ctrl[:7], reading.q - HIL_SIM_Q_OFFSET)
     assert np.all(world.data.ctrl[7:9] == 0.0)  # grip kept
 
+
+
+def test_the_runtime_builds_the_state_the_student_was_trained_on(world):
+    """Training reads ``world.joint_state()`` (the model's angles); on the rig the runtime builds the state
+    from the driver's reading (libfranka's angles) and the policy file's joint offset: the same vector."""
+    backend = MujocoBackend(world, threading.Lock())
+    backend.command(q_target=LIBFRANKA_HOME + 0.1, gripper_closed=True)
+    world.step(0.3)
+    reading = backend.read()
+    offset = PolicyMetadata(DepthSpec()).joint_offset_rad
+    runtime_state = policy_state(reading.q, reading.gripper_width, offset)
+    assert runtime_state.dtype == world.joint_state().dtype == np.float32
+    np.testing.assert_allclose(runtime_state, world.joint_state(), atol=1e-6)
+    assert 0 < runtime_state[7] < 0.08  # a gripper part way closed: the opening is the 8th value
+    world.reset("cube", 0, randomise=False)
