@@ -15,10 +15,10 @@ from collections.abc import Callable
 
 from runtime.franka_driver.backend import Backend, BackendError
 from runtime.franka_driver.franka_backend import FrankaBackend, FrankaConfig
-from runtime.franka_driver.server import DriverConfig, DriverServer, allowed_clients, check_bind
+from runtime.franka_driver.server import DriverConfig, DriverServer, allowed_clients
 from runtime.protocol import DEFAULT_ROBOT, robot_endpoints
 from runtime.realtime import raise_priority
-from runtime.transport import CurveKeys, TransportError
+from runtime.transport import CurveKeys, TransportError, check_bind
 
 
 def parser(prog: str, doc: str) -> argparse.ArgumentParser:
