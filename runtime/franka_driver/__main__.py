@@ -8,16 +8,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
 import sys
-import threading
 from collections.abc import Callable
 
 from runtime.franka_driver.backend import Backend, BackendError
 from runtime.franka_driver.franka_backend import FrankaBackend, FrankaConfig
 from runtime.franka_driver.server import DriverConfig, DriverServer, allowed_clients
 from runtime.protocol import DEFAULT_ROBOT, robot_endpoints
-from runtime.realtime import raise_priority
+from runtime.realtime import announce_priority, stop_on_signals
 from runtime.transport import CurveKeys, TransportError, check_bind
 
 
@@ -37,9 +35,7 @@ def parser(prog: str, doc: str) -> argparse.ArgumentParser:
 
 def serve(args: argparse.Namespace, open_backend: Callable[[], Backend], name: str) -> int:
     """Check the options, open the backend and serve it until SIGINT/SIGTERM; the exit status."""
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     try:
         keys = CurveKeys.from_files(args.curve_secret) if args.curve_secret else None
         if keys is not None and args.curve_clients is None:
@@ -48,8 +44,7 @@ def serve(args: argparse.Namespace, open_backend: Callable[[], Backend], name: s
         config = DriverConfig(bind=args.bind, state_hz=args.state_hz)
         for endpoint in robot_endpoints(args.bind):
             check_bind(endpoint, keys)  # before the (slow, maybe physical) backend comes up
-        raised, granted = raise_priority()  # before the backend: its threads inherit the priority
-        print(f"franka_driver: {'' if raised else 'WARNING '}{granted}", file=sys.stderr, flush=True)
+        announce_priority("franka_driver")  # before the backend: its threads inherit the priority
         backend = open_backend()
     except (TransportError, BackendError, ValueError) as exc:
         print(f"franka_driver: {exc}", file=sys.stderr)

@@ -45,18 +45,12 @@ FAULT_TEXT = {"command_timeout": "no live command: holding position",
 class DriverConfig:
     """How the driver serves the robot."""
 
-    bind: str = DEFAULT_ROBOT
-    """State endpoint (PUB); commands are PULLed on its port + 1. Loopback unless keyed."""
-    state_hz: float = 200.0
-    """Control-step and state-publish rate (the contract asks >= 100 Hz)."""
-    max_message_bytes: int = 65536
-    """ZeroMQ disconnects a peer that sends a bigger frame; commands are ~300 bytes."""
-    status_repeat_s: float = 1.0
-    """A persisting fault is re-announced at most this often."""
-    refusal_status_s: float = 0.1
-    """A refused message's status code is announced at most this often."""
-    lease_s: float = 1.0
-    """The controlling session keeps the arm this long after its last accepted command."""
+    bind: str = DEFAULT_ROBOT  # state endpoint (PUB); commands are PULLed on its port + 1
+    state_hz: float = 200.0  # control-step and state-publish rate (the contract asks >= 100 Hz)
+    max_message_bytes: int = 65536  # ZeroMQ disconnects a peer that sends more; commands are ~300 bytes
+    status_repeat_s: float = 1.0  # a persisting fault is re-announced at most this often
+    refusal_status_s: float = 0.1  # a refused message's status code is announced at most this often
+    lease_s: float = 1.0  # the controlling session keeps the arm this long after its last accepted command
     safety: SafetyConfig = field(default_factory=SafetyConfig)
 
     def __post_init__(self) -> None:

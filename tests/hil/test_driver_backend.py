@@ -8,8 +8,7 @@ import pytest
 
 from hil_sim.driver_backend import MujocoBackend
 from hil_sim.world import HOME_Q, TABLE_Z, World
-from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET, panda_tcp
-from runtime.franka_driver.limits import Q_MAX, Q_MIN, READY_Q
+from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET, Q_MAX, Q_MIN, READY_Q, panda_tcp
 from runtime.metadata import PolicyMetadata
 from runtime.preprocess import DepthSpec, policy_state
 
