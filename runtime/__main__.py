@@ -12,7 +12,8 @@ import argparse
 import sys
 from contextlib import ExitStack, closing
 
-from runtime.cameras import CameraError, open_camera
+from runtime.cameras import open_camera
+from runtime.cameras.base import CameraError
 from runtime.loop import EXIT_CAMERA, ControlLoop, LoopConfig, RobotLink
 from runtime.policy import Policy, PolicyError, SessionConfig
 from runtime.preprocess import RESTORE_METHODS

@@ -34,7 +34,7 @@ from typing import TextIO
 import numpy as np
 import zmq
 
-from runtime.cameras import Camera, CameraEnded, CameraError, CameraStalled, Frame
+from runtime.cameras.base import Camera, CameraEnded, CameraError, CameraStalled, Frame
 from runtime.policy import NanActionError, Policy, PolicyError
 from runtime.preprocess import RESTORE_METHODS, FrameStack, policy_state, preprocess
 from runtime.protocol import DEFAULT_ROBOT, DOF, Encoder, Message, robot_endpoints, session_tag

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.cameras import CameraEnded, CameraError, Frame
+from runtime.cameras.base import CameraEnded, CameraError, Frame
 from runtime.preprocess import DepthSpec, StreamIntrinsics, match_stream, trained_stream
 
 try:

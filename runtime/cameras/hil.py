@@ -7,7 +7,7 @@ from collections import deque
 import numpy as np
 import zmq
 
-from runtime.cameras import CameraError, Frame, check_stream
+from runtime.cameras.base import CameraError, Frame, check_stream
 from runtime.preprocess import DepthSpec
 from runtime.protocol import DEFAULT_CAMERA
 from runtime.transport import CurveKeys, Newest, TransportError, connect

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.cameras import CameraEnded, CameraError, Frame, check_stream
+from runtime.cameras.base import CameraEnded, CameraError, Frame, check_stream
 from runtime.preprocess import DepthSpec
 
 DEFAULT_SCALE = 0.001
