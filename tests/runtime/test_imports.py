@@ -17,7 +17,7 @@ BANNED = ("torch", "trainer", "export", "diffusers", "mujoco", "hil_sim")
 ENTRY_POINTS = ("runtime/__main__.py", "runtime/franka_driver/__main__.py")
 DEPLOY_LINES = 2100
 """Ceiling on what ``runtime`` and ``python -m runtime.franka_driver`` import from the project, in non-blank
-lines (2,353 before issue 43, 2,077 after). A ratchet: lower it as the deploy side shrinks. The issue's goal
+lines (2,353 before issue 43, 2,082 after). A ratchet: lower it as the deploy side shrinks. The issue's goal
 of 1,500 is below its code alone (~1,560 lines without a docstring, comment or import)."""
 
 
