@@ -1,8 +1,9 @@
 """hil_sim's real-time server: the MuJoCo world stepped at wall-clock speed, a simulated D455 publishing
-depth over ZeroMQ, and the franka_driver (``mujoco`` backend) serving state and commands:
+depth over ZeroMQ, and the robot driver serving state and commands:
 
 * physics (thread): steps the world in 5 ms chunks to keep simulated time = wall time, under one lock;
-* driver (thread): ``runtime.franka_driver.DriverServer``, the same server the real robot gets;
+* driver (thread): ``runtime.franka_driver``'s ``DriverServer``, the same server the real robot gets, over
+  ``hil_sim.driver_backend.MujocoBackend``;
 * camera (its own process: rendering held the GIL long enough to stall the driver's 200 Hz state
   stream past the runtime's 100 ms staleness limit, measured): snapshots the pose at ``camera_hz``
   (``t_capture``), renders depth, publishes ``publish_delay_s`` after capture, as a real D455 delivers a
@@ -37,8 +38,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco  # noqa: E402  (MUJOCO_GL must be set before the import)
 
 from hil_sim.camera import to_millimetres  # noqa: E402
+from hil_sim.driver_backend import MujocoBackend  # noqa: E402
 from hil_sim.world import CAMERA, World  # noqa: E402
-from runtime.franka_driver.mujoco_backend import MujocoBackend  # noqa: E402
 from runtime.franka_driver.server import DriverConfig, DriverServer  # noqa: E402
 from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT, Encoder  # noqa: E402
 from runtime.transport import TransportError, bind  # noqa: E402

@@ -25,7 +25,7 @@ import mujoco  # noqa: E402
 
 from hil_sim import objects  # noqa: E402
 from hil_sim.camera import DepthCamera, Intrinsics, d455_intrinsics, extrinsics, look_at_quat  # noqa: E402
-from runtime.preprocess import DepthSpec  # noqa: E402
+from runtime.preprocess import DepthSpec, policy_state  # noqa: E402
 
 TABLE_Z = 0.75
 WORKSPACE_X = (0.35, 0.65)
@@ -265,8 +265,8 @@ class World:
         return float(self.data.qpos[self._ids.finger_qpos].sum())
 
     def joint_state(self) -> np.ndarray:
-        """The 8-d state the student sees: 7 joint angles + gripper opening (m), float32."""
-        return np.append(self.q, self.gripper_opening).astype(np.float32)
+        """The 8-d state the student sees (``runtime.preprocess.policy_state``): this model's joint angles."""
+        return policy_state(self.q, self.gripper_opening)
 
     def ee_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """Grasp site between the finger pads: position (3) and quaternion (w, x, y, z)."""

@@ -9,17 +9,16 @@ exit after the loop has started leaves the arm with a hold command.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
-from contextlib import ExitStack
+from contextlib import ExitStack, closing
 
-from runtime.cameras import CameraError, open_camera
+from runtime.cameras import open_camera
+from runtime.cameras.base import CameraError
 from runtime.loop import EXIT_CAMERA, ControlLoop, LoopConfig, RobotLink
 from runtime.policy import Policy, PolicyError, SessionConfig
 from runtime.preprocess import RESTORE_METHODS
 from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT
-from runtime.realtime import raise_priority
+from runtime.realtime import announce_priority, stop_on_signals
 from runtime.transport import CurveKeys, TransportError
 
 EXIT_USAGE = 2
@@ -56,7 +55,7 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
-    _announce_priority()  # before the policy: onnxruntime's threads, started with it, inherit the priority
+    announce_priority("runtime")  # before the policy: onnxruntime's threads, started with it, inherit it
     try:
         policy = Policy(args.model, SessionConfig(args.threads, args.spin), seed=args.seed)
         config = loop_config(args, policy.metadata.control_rate_hz)
@@ -68,17 +67,15 @@ def main(argv: list[str] | None = None) -> int:
               f"{policy.metadata.control_rate_hz} Hz", file=sys.stderr)
     with ExitStack() as stack:
         try:
-            camera = open_camera(args.camera, policy.metadata.preprocess, period_s=config.period)
+            camera = stack.enter_context(closing(open_camera(args.camera, policy.metadata.preprocess,
+                                                             period_s=config.period)))
+            robot = stack.enter_context(closing(RobotLink(args.robot, keys=keys)))
         except CameraError as exc:
             return _fail(exc, EXIT_CAMERA)
-        stack.callback(camera.close)
-        try:
-            robot = RobotLink(args.robot, keys=keys)
         except (TransportError, ValueError) as exc:
             return _fail(exc, EXIT_USAGE)
-        stack.callback(robot.close)
         metrics = stack.enter_context(open(args.metrics, "w", buffering=1)) if args.metrics else None
-        loop = ControlLoop(policy, camera, robot, config, metrics=metrics, stop=_stop_on_signals())
+        loop = ControlLoop(policy, camera, robot, config, metrics=metrics, stop=stop_on_signals())
         code = loop.run()
         print(f"runtime: done, exit {code}: {loop.counts}", file=sys.stderr)
         return code
@@ -93,18 +90,6 @@ def loop_config(args: argparse.Namespace, policy_rate_hz: float) -> LoopConfig:
         startup = min(startup, args.seconds)
     return LoopConfig(rate_hz=policy_rate_hz if args.rate is None else args.rate, seconds=args.seconds,
                       restore=args.restore, startup_timeout_s=startup)
-
-
-def _announce_priority() -> None:
-    raised, granted = raise_priority()
-    print(f"runtime: {'' if raised else 'WARNING '}{granted}", file=sys.stderr, flush=True)
-
-
-def _stop_on_signals() -> threading.Event:
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    return stop
 
 
 def _fail(exc: Exception, code: int) -> int:

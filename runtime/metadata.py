@@ -1,7 +1,7 @@
 """The policy file's self-description (contract): one JSON document in ``student.onnx``'s metadata_props.
 
-Export writes it, the runtime reads it and refuses a file whose schema it does not know. Normalisation
-is applied inside the graph; the statistics are repeated here so a reader can audit them.
+Export writes it, the runtime reads it and refuses a file whose schema it does not know. Normalisation is
+applied inside the graph; its statistics are repeated here for audit.
 """
 
 from __future__ import annotations
@@ -18,13 +18,19 @@ SCHEMA = "diffudepgrasp.policy/1"
 METADATA_KEY = "diffudepgrasp"  # the metadata_props key that holds the JSON
 DDIM_SPACINGS = ("leading", "trailing")
 """Where K inference steps sit among the training steps (diffusers' ``timestep_spacing``): ``leading`` starts
-at T - T/K (75 of 100 at K = 4), so the start noise is read as a sample that is already 37 % signal;
-``trailing`` starts at the last training step (99: pure noise, as the start noise is), Lin et al. 2024,
-"Common diffusion noise schedules and sample steps are flawed"."""
+at T - T/K (75 of 100 at K = 4), reading the start noise as a sample already 37 % signal; ``trailing`` at the
+last step (pure noise, as the start noise is; Lin et al. 2024, "Common diffusion noise schedules and sample
+steps are flawed")."""
 
 
 class MetadataError(ValueError):
     """A policy file whose metadata is missing, of an unknown schema, or inconsistent."""
+
+
+def _check_schema(schema: Any) -> None:
+    if schema != SCHEMA:
+        raise MetadataError(f"policy metadata schema {schema!r} is not supported (expected {SCHEMA!r}); "
+                            "re-export the student with this version")
 
 
 @dataclass(frozen=True)
@@ -37,16 +43,14 @@ class PolicyMetadata:
     obs_horizon: int = 3
     """Depth frames stacked in the ``depth`` input, oldest first."""
     first_frame: bool = False
-    """The ``depth`` input leads with the episode's first frame, before the last ``obs_horizon`` ones
-    (``FrameStack``); files from before this field had none."""
+    """The ``depth`` input leads with the episode's first frame (``FrameStack``); older files had none."""
     action_horizon: int = 16
     """Ha: actions predicted per inference."""
     exec_horizon: int = 8
     """Actions executed from each chunk before the next inference result replaces them."""
     ddim_steps: int = 4
     ddim_spacing: str = "leading"
-    """Where the DDIM steps sit among the training steps (``DDIM_SPACINGS``); files from before
-    this field were all ``leading``."""
+    """``DDIM_SPACINGS``; files from before this field were all ``leading``."""
     state_dim: int = 8
     action_dim: int = 8
     normalisation: dict[str, Any] = field(default_factory=dict)
@@ -54,16 +58,14 @@ class PolicyMetadata:
     training_data: dict[str, Any] = field(default_factory=dict)
     """Fingerprint of the demos, depth source (gt|randnoise|ddg|...), training command."""
     joint_offset_rad: tuple[float, ...] = tuple(-x for x in HIL_SIM_Q_OFFSET)
-    """Added to the arm's joint angles as the robot reports them (libfranka's convention) to get the angles
-    the policy was trained on: those of hil_sim's Panda model, whose joint 6 reads pi/2 less."""
+    """Added to the joint angles a robot reports (libfranka's convention) to get those the policy was trained
+    on: hil_sim's Panda model's, whose joint 6 reads pi/2 less (``preprocess.policy_state``)."""
     trained: bool = False
     """False for the untrained fixtures that tests build; the runtime warns loudly when running one."""
     schema: str = SCHEMA
 
     def __post_init__(self) -> None:
-        if self.schema != SCHEMA:
-            raise MetadataError(f"policy metadata schema {self.schema!r} is not supported "
-                                f"(expected {SCHEMA!r})")
+        _check_schema(self.schema)
         if not (0 < self.exec_horizon <= self.action_horizon):
             raise MetadataError(f"exec_horizon {self.exec_horizon} must be in 1..action_horizon "
                                 f"({self.action_horizon})")
@@ -84,13 +86,10 @@ class PolicyMetadata:
         """Static graph input shapes, batch 1."""
         spec = self.preprocess
         return {"depth": [1, self.obs_horizon + self.first_frame, spec.out_height, spec.out_width],
-                "state": [1, self.state_dim],
-                "noise": [1, self.action_horizon, self.action_dim]}
+                "state": [1, self.state_dim], "noise": [1, self.action_horizon, self.action_dim]}
 
     def to_json(self) -> str:
-        d = asdict(self)
-        d["preprocess"] = self.preprocess.to_dict()
-        return json.dumps(d, sort_keys=True)
+        return json.dumps({**asdict(self), "preprocess": self.preprocess.to_dict()}, sort_keys=True)
 
     @classmethod
     def from_json(cls, text: str) -> PolicyMetadata:
@@ -100,15 +99,11 @@ class PolicyMetadata:
             raise MetadataError(f"policy metadata is not valid JSON: {exc}") from None
         if not isinstance(d, dict):
             raise MetadataError("policy metadata must be a JSON object")
-        if d.get("schema") != SCHEMA:
-            raise MetadataError(f"policy metadata schema {d.get('schema')!r} is not supported "
-                                f"(expected {SCHEMA!r}); re-export the student with this version")
-        unknown = set(d) - set(cls.__dataclass_fields__)
-        if unknown:
+        _check_schema(d.get("schema"))  # first: another schema's fields are no error of this one
+        if unknown := set(d) - set(cls.__dataclass_fields__):
             raise MetadataError(f"unknown policy metadata fields {sorted(unknown)}")
         try:
-            if "joint_offset_rad" in d:
-                d["joint_offset_rad"] = tuple(d["joint_offset_rad"])
-            return cls(**{**d, "preprocess": DepthSpec.from_dict(d.get("preprocess", {}))})
+            return cls(**{**d, "preprocess": DepthSpec.from_dict(d.get("preprocess", {})),
+                          "joint_offset_rad": tuple(d.get("joint_offset_rad", cls.joint_offset_rad))})
         except (TypeError, ValueError) as exc:
             raise MetadataError(f"invalid policy metadata: {exc}") from None

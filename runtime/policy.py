@@ -1,8 +1,7 @@
-"""The student policy: ``student.onnx`` loaded into onnxruntime (CPU), checked against its own metadata.
+"""The student policy: ``student.onnx`` in onnxruntime (CPU), checked against its own metadata at load time.
 
-The file is self-describing (runtime.metadata); anything the runtime cannot trust - a missing or corrupt
-file, an unknown metadata schema, graph inputs/outputs that disagree with the metadata - is a ``PolicyError``
-naming the file and the problem, raised at load time rather than at the first tick.
+A missing or corrupt file, an unknown metadata schema or graph inputs/outputs that disagree with the metadata
+are a ``PolicyError`` naming the file and the problem, raised at load rather than at the first tick.
 """
 
 from __future__ import annotations
@@ -18,9 +17,6 @@ import onnxruntime as ort
 from runtime.metadata import METADATA_KEY, MetadataError, PolicyMetadata
 from runtime.protocol import DOF
 
-_INPUTS = ("depth", "state", "noise")
-_OUTPUT = "actions"
-
 
 class PolicyError(RuntimeError):
     """A policy file or output the runtime refuses; the text names the file and the problem."""
@@ -32,19 +28,15 @@ class NanActionError(PolicyError):
 
 @dataclass(frozen=True)
 class SessionConfig:
-    """onnxruntime CPU settings. Defaults measured on the 2-core target with camera and robot traffic
-    running (docs/runtime.md): one intra-op thread without spinning leaves the second core to the
-    camera/driver and does not burn it busy-waiting."""
+    """onnxruntime CPU settings, measured on the 2-core target with camera and robot traffic running
+    (docs/runtime.md): one intra-op thread, not spinning, leaves the second core to the camera and driver."""
 
     intra_op_threads: int = 1
-    """Threads inside one operator (onnxruntime intra_op_num_threads)."""
-    allow_spinning: bool = False
-    """Let idle intra-op threads busy-wait for work (session.intra_op.allow_spinning)."""
+    allow_spinning: bool = False  # let idle intra-op threads busy-wait for work
 
     def options(self) -> ort.SessionOptions:
         opts = ort.SessionOptions()
-        opts.intra_op_num_threads = self.intra_op_threads
-        opts.inter_op_num_threads = 1
+        opts.intra_op_num_threads, opts.inter_op_num_threads = self.intra_op_threads, 1
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.add_session_config_entry("session.intra_op.allow_spinning", "1" if self.allow_spinning else "0")
@@ -58,17 +50,24 @@ class Policy:
 
     def __init__(self, path: str | Path, config: SessionConfig = SessionConfig(), seed: int = 0) -> None:
         self.path = Path(path)
-        self.session = _open(self.path, config)
+        if not self.path.is_file():
+            raise PolicyError(f"{path}: no such policy file")
+        try:
+            self.session = ort.InferenceSession(str(path), config.options(),
+                                                providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own untyped pybind errors for bad files
+            reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise PolicyError(f"{path}: not a loadable ONNX model ({reason:.200})") from None
         self.metadata = _read_metadata(self.path, self.session)
         _check_signature(self.path, self.session, self.metadata)
-        self._rng = np.random.default_rng(seed)
+        self.reseed(seed)
         if not self.metadata.trained:
             print(f"runtime: WARNING {self.path} is an UNTRAINED policy (metadata trained=false); "
                   "it will not grasp anything", file=sys.stderr)
 
     def reseed(self, seed: int) -> None:
-        """Restart the start noise's generator from ``seed``: the same inputs then give the same actions
-        (the evaluator reseeds from each episode's seed, so an episode does not depend on those before it)."""
+        """Restart the start noise's generator: the same inputs then give the same actions (the evaluator
+        reseeds per episode, so an episode does not depend on those before it)."""
         self._rng = np.random.default_rng(seed)
 
     @property
@@ -82,7 +81,7 @@ class Policy:
             noise = self._rng.standard_normal(self.noise_shape, dtype=np.float32)
         feeds = {"depth": np.ascontiguousarray(depth, dtype=np.float32)[None],
                  "state": np.ascontiguousarray(state, dtype=np.float32)[None], "noise": noise}
-        actions = self.session.run([_OUTPUT], feeds)[0][0]
+        actions = self.session.run(["actions"], feeds)[0][0]
         if not np.isfinite(actions).all():
             raise NanActionError(f"{self.path.name} produced {int((~np.isfinite(actions)).sum())} non-finite "
                                  "action values")
@@ -91,24 +90,13 @@ class Policy:
     def warmup(self, runs: int = 5) -> list[float]:
         """Run on a blank input ``runs`` times (first-call allocations); return each duration in seconds."""
         shapes = self.metadata.input_shapes()
-        depth = np.zeros(shapes["depth"][1:], np.float32)
-        state = np.zeros(shapes["state"][1:], np.float32)
+        depth, state = np.zeros(shapes["depth"][1:], np.float32), np.zeros(shapes["state"][1:], np.float32)
         durations = []
         for _ in range(runs):
             t = time.perf_counter()
             self(depth, state)
             durations.append(time.perf_counter() - t)
         return durations
-
-
-def _open(path: Path, config: SessionConfig) -> ort.InferenceSession:
-    if not path.is_file():
-        raise PolicyError(f"{path}: no such policy file")
-    try:
-        return ort.InferenceSession(str(path), config.options(), providers=["CPUExecutionProvider"])
-    except Exception as exc:  # onnxruntime raises its own untyped pybind errors for bad files
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise PolicyError(f"{path}: not a loadable ONNX model ({reason:.200})") from None
 
 
 def _read_metadata(path: Path, session: ort.InferenceSession) -> PolicyMetadata:
@@ -120,10 +108,10 @@ def _read_metadata(path: Path, session: ort.InferenceSession) -> PolicyMetadata:
         meta = PolicyMetadata.from_json(props[METADATA_KEY])
     except MetadataError as exc:
         raise PolicyError(f"{path}: {exc}") from None
-    for name, want in (("state_dim", DOF + 1), ("action_dim", DOF + 1)):
-        if getattr(meta, name) != want:
+    for name in ("state_dim", "action_dim"):
+        if getattr(meta, name) != DOF + 1:
             raise PolicyError(f"{path}: metadata {name}={getattr(meta, name)}, the Panda runtime needs "
-                              f"{want} (7 joints + gripper)")
+                              f"{DOF + 1} (7 joints + gripper)")
     if len(meta.joint_offset_rad) != DOF:
         raise PolicyError(f"{path}: metadata joint_offset_rad has {len(meta.joint_offset_rad)} angles, the "
                           f"Panda has {DOF} joints")
@@ -132,22 +120,16 @@ def _read_metadata(path: Path, session: ort.InferenceSession) -> PolicyMetadata:
 
 def _check_signature(path: Path, session: ort.InferenceSession, meta: PolicyMetadata) -> None:
     """Graph inputs/outputs must be float32 with the shapes the metadata promises (batch may be symbolic)."""
-    want = {**meta.input_shapes(), _OUTPUT: [1, meta.action_horizon, meta.action_dim]}
+    want = {**meta.input_shapes(), "actions": [1, meta.action_horizon, meta.action_dim]}
     inputs = {i.name: i for i in session.get_inputs()}
     outputs = {o.name: o for o in session.get_outputs()}
-    if set(inputs) != set(_INPUTS):
-        raise PolicyError(f"{path}: graph inputs {sorted(inputs)}, expected {sorted(_INPUTS)}")
-    if _OUTPUT not in outputs:
-        raise PolicyError(f"{path}: graph has no {_OUTPUT!r} output (outputs: {sorted(outputs)})")
-    for name, arg in {**inputs, _OUTPUT: outputs[_OUTPUT]}.items():
+    if set(inputs) != {"depth", "state", "noise"}:
+        raise PolicyError(f"{path}: graph inputs {sorted(inputs)}, expected ['depth', 'noise', 'state']")
+    if "actions" not in outputs:
+        raise PolicyError(f"{path}: graph has no 'actions' output (outputs: {sorted(outputs)})")
+    for name, arg in {**inputs, "actions": outputs["actions"]}.items():
         if arg.type != "tensor(float)":
             raise PolicyError(f"{path}: {name} is {arg.type}, expected tensor(float)")
-        if not _shape_matches(arg.shape, want[name]):
+        batch, *rest = arg.shape or [None]
+        if (isinstance(batch, int) and batch != 1) or rest != want[name][1:]:  # batch may be symbolic
             raise PolicyError(f"{path}: {name} has shape {arg.shape}, metadata implies {want[name]}")
-
-
-def _shape_matches(actual: list, expected: list[int]) -> bool:
-    if len(actual) != len(expected):
-        return False
-    batch_ok = not isinstance(actual[0], int) or actual[0] == expected[0]
-    return batch_ok and all(a == e for a, e in zip(actual[1:], expected[1:], strict=True))

@@ -1,4 +1,5 @@
-"""Raw camera depth -> policy input. The ONE implementation: the trainer, the DDG and the runtime import it.
+"""Raw camera depth and robot joints -> policy inputs. The ONE implementation: trainer, DDG, hil_sim and the
+runtime import it.
 
 Pipeline (each step its own function so the dataset path can stop half way):
 
@@ -14,6 +15,7 @@ Pipeline (each step its own function so the dataset path can stop half way):
    "nothing measured" from "very near".
 
 ``preprocess`` = ``normalise(restore_holes(crop_resize(...)))``; tests prove the two paths are bit-identical.
+``policy_state`` builds the ``state`` input, ``FrameStack`` the ``depth`` input's history.
 """
 
 from __future__ import annotations
@@ -179,6 +181,14 @@ def preprocess(raw: np.ndarray, depth_scale: float, spec: DepthSpec,
                window: tuple[int, int] | None = None, restore: str = "none") -> np.ndarray:
     """Raw sensor frame -> float32 [out_height, out_width] policy input."""
     return normalise(restore_holes(crop_resize(raw, spec, window), restore), depth_scale, spec)
+
+
+def policy_state(q: np.ndarray, gripper_opening: float, joint_offset: tuple[float, ...] | None = None
+                 ) -> np.ndarray:
+    """The ``state`` input, float32 [8]: 7 joint angles + gripper opening (m). ``joint_offset`` (the policy
+    metadata's ``joint_offset_rad``) turns the angles a robot reports into those the policy was trained on."""
+    q = np.asarray(q, dtype=np.float64) + (0.0 if joint_offset is None else np.asarray(joint_offset))
+    return np.array([*q, gripper_opening], dtype=np.float32)
 
 
 class FrameStack:

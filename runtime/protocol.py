@@ -1,24 +1,15 @@
 """Wire protocol between camera, runtime and franka_driver (contract; see DESIGN.md).
 
-A message is two ZeroMQ frames: a small msgpack header (a map) and a raw payload (bytes, may be empty).
-Depth travels as the raw uint16 buffer in the payload: no per-pixel encoding. Every header carries
-
-    v        schema version (``VERSION``); a peer that speaks another version is refused
-    kind     one of ``KINDS``
-    seq      sequence number, per sender, +1 per message
-    t_send   sender's ``time.monotonic()`` when it sent
-
-plus the fields of its kind (``_FIELDS``); fields a kind does not declare are dropped on decode.
-Timestamps are CLOCK_MONOTONIC seconds: comparable between processes on one host (loopback, the default).
+A message is two ZeroMQ frames: a msgpack header (a map) and a raw payload (bytes, may be empty; depth travels
+as the raw uint16 buffer). Every header carries ``v`` (``VERSION``; another version is refused), ``kind``
+(``KINDS``), ``seq`` (per sender, +1 per message) and ``t_send``, plus the fields of its kind (``_FIELDS``);
+undeclared fields are dropped on decode. Times are CLOCK_MONOTONIC seconds: comparable between processes on
+one host (loopback, the default). Version 2 added the controller session: a ``command`` names its sender's
+secret ``session``, a ``state`` the public ``session_tag`` of the session the driver executes ("" if none).
 
 ``decode`` turns anything malformed, truncated, oversized or of another version into a ``ProtocolError``
-naming the problem; it never raises anything else, and its error text shows untrusted values only cut to a
-bounded size (containers by type and length alone: ``repr`` of a list nested ~1,000 deep raised
-RecursionError and took the reading process down).
-
-Version 2 added the controller session: every ``command`` names the ``session`` (a secret random token of the
-runtime process that sent it), and every ``state`` names the ``controller``, the public ``session_tag`` of
-the session whose commands the driver is executing ("" when none).
+naming the problem, never anything else; its text shows untrusted values cut to a bounded size (``repr`` of a
+list nested ~1,000 deep raised RecursionError and took the reading process down).
 """
 
 from __future__ import annotations
@@ -26,7 +17,7 @@ from __future__ import annotations
 import hashlib
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import msgpack
@@ -34,72 +25,58 @@ import numpy as np
 
 VERSION = 2
 MAX_HEADER_BYTES = 4096
-MAX_TEXT = 512
-"""Longest string field; the header limit bounds them anyway, this keeps one field from filling it."""
+MAX_TEXT = 512  # longest string field, so one field cannot fill the header
 MAX_PAYLOAD_BYTES = 1280 * 720 * 2  # the largest D455 depth frame
 DOF = 7
+# Loopback only by default. A robot address names the driver's state port; its commands go to port + 1.
+DEFAULT_CAMERA, DEFAULT_ROBOT = "tcp://127.0.0.1:5555", "tcp://127.0.0.1:5556"
 
 
 class ProtocolError(ValueError):
     """A message that cannot be accepted. The text says which field and why."""
 
 
-def _num(x: Any) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+def _check(what: str, test: Any) -> Any:
+    test.what = what
+    return test
 
 
-def _int(x: Any) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-def _vec(n: int):
-    def check(x: Any) -> bool:
-        return isinstance(x, (list, tuple)) and len(x) == n and all(_num(v) for v in x)
-    check.__doc__ = f"a list of {n} finite numbers"
-    return check
-
-
-def _text(max_len: int, min_len: int = 0):
-    def check(x: Any) -> bool:
-        return isinstance(x, str) and min_len <= len(x) <= max_len
-    check.__doc__ = f"a string of {min_len}..{max_len} characters"
-    return check
-
-
-def _BOOL(x: Any) -> bool:
-    return isinstance(x, bool)
-
-
-_num.__doc__ = "a finite number"
-_int.__doc__ = "an integer"
-_BOOL.__doc__ = "a boolean"
-_STR = _text(MAX_TEXT)
-SESSION_CHARS = (16, 64)
-"""Length range of a command's ``session`` token (``RobotLink`` draws 32 hex characters)."""
-
-_COMMON = {"v": _int, "kind": _STR, "seq": _int, "t_send": _num}
+_INT = _check("an integer", lambda x: isinstance(x, int) and not isinstance(x, bool))
+_NUM = _check("a finite number", lambda x: (_INT(x) or isinstance(x, float)) and math.isfinite(x))
+_BOOL = _check("a boolean", lambda x: isinstance(x, bool))
+_STR = _check(f"a string of 0..{MAX_TEXT} characters", lambda x: isinstance(x, str) and len(x) <= MAX_TEXT)
+_SESSION = _check("a string of 16..64 characters", lambda x: isinstance(x, str) and 16 <= len(x) <= 64)
+_JOINTS = _check(f"a list of {DOF} finite numbers",
+                 lambda x: isinstance(x, (list, tuple)) and len(x) == DOF and all(_NUM(v) for v in x))
+_COMMON = {"v": _INT, "kind": _STR, "seq": _INT, "t_send": _NUM}
 _FIELDS: dict[str, dict[str, Any]] = {
     # Camera -> runtime. Payload: height*width uint16 little-endian, sensor units of depth_scale metres.
-    "depth": {"t_capture": _num, "frame": _int, "width": _int, "height": _int, "depth_scale": _num},
-    # Driver -> runtime, >= 100 Hz. gripper: opening width in metres (0 closed .. 0.08 open).
-    # controller: session_tag of the session holding the driver's command lease, "" when none.
-    "state": {"t_capture": _num, "q": _vec(DOF), "dq": _vec(DOF), "gripper": _num, "holding": _BOOL,
+    "depth": {"t_capture": _NUM, "frame": _INT, "width": _INT, "height": _INT, "depth_scale": _NUM},
+    # Driver -> runtime, >= 100 Hz. gripper: opening in metres (0 closed .. 0.08 open).
+    "state": {"t_capture": _NUM, "q": _JOINTS, "dq": _JOINTS, "gripper": _NUM, "holding": _BOOL,
               "fault": _STR, "controller": _STR},
-    # Runtime -> driver. gripper: -1 open / +1 close. deadline: monotonic time after which it is stale.
-    # t_capture: capture time of the newest depth frame behind it (for latency accounting).
-    # session: the sender's secret token; the driver executes one session at a time, seq increasing.
-    "command": {"t_capture": _num, "q_target": _vec(DOF), "gripper": _num, "deadline": _num,
-                "session": _text(SESSION_CHARS[1], SESSION_CHARS[0])},
-    # Anyone -> anyone: a named condition (e.g. camera_stalled, late_tick, nan_action) and free text.
+    # Runtime -> driver. gripper: -1 open / +1 close; deadline: when it goes stale; t_capture: of the newest
+    # depth frame behind it (latency accounting); the driver executes one session at a time, seq increasing.
+    "command": {"t_capture": _NUM, "q_target": _JOINTS, "gripper": _NUM, "deadline": _NUM,
+                "session": _SESSION},
+    # Anyone -> anyone: a named condition (e.g. camera_stalled, command_timeout) and free text.
     "status": {"code": _STR, "detail": _STR},
 }
 KINDS = tuple(_FIELDS)
 
 
 def session_tag(session: str) -> str:
-    """The public name of a session, as ``state`` messages show it. A hash, because the state stream is
-    readable by every local process and the session itself is what entitles a sender to move the arm."""
+    """The public name of a session in ``state`` messages: a hash, because every local process can read the
+    state stream and the session itself entitles a sender to move the arm."""
     return hashlib.sha256(session.encode()).hexdigest()[:16]
+
+
+def robot_endpoints(robot: str) -> tuple[str, str]:
+    """(state endpoint, command endpoint) of a driver at ``robot`` = tcp://HOST:PORT."""
+    head, sep, port = robot.rpartition(":")
+    if not (robot.startswith("tcp://") and sep and port.isdigit()):
+        raise ValueError(f"robot address must look like tcp://HOST:PORT, got {robot!r}")
+    return robot, f"{head}:{int(port) + 1}"
 
 
 @dataclass
@@ -127,7 +104,7 @@ class Message:
 class Encoder:
     """Builds outgoing messages for one sender, numbering them."""
 
-    seq: int = field(default=0)
+    seq: int = 0
 
     def encode(self, kind: str, payload: bytes = b"", **fields: Any) -> list[bytes]:
         header = {"v": VERSION, "kind": kind, "seq": self.seq, "t_send": time.monotonic(), **fields}
@@ -147,26 +124,23 @@ class Encoder:
 def decode(frames: list[bytes]) -> Message:
     """Parse and validate a two-frame message; ``ProtocolError`` on anything unacceptable."""
     try:
-        return _decode(frames)
+        if not isinstance(frames, (list, tuple)) or len(frames) != 2:
+            raise ProtocolError(f"expected 2 frames (header, payload), got {_show(frames)}")
+        raw_header, payload = (_bytes(f) for f in frames)
+        if len(raw_header) > MAX_HEADER_BYTES:
+            raise ProtocolError(f"header of {len(raw_header)} bytes exceeds {MAX_HEADER_BYTES}")
+        try:
+            header = msgpack.unpackb(raw_header, raw=False, strict_map_key=True, max_bin_len=0, max_ext_len=0)
+        except Exception as exc:  # msgpack raises many types for bad bytes; all mean the same here
+            raise ProtocolError(f"header is not valid msgpack: {type(exc).__name__}: {_show(str(exc))}"
+                                ) from None
+        _validate(header, len(payload))
+        declared = {**_COMMON, **_FIELDS[header["kind"]]}
+        return Message({k: v for k, v in header.items() if k in declared}, payload)
     except ProtocolError:
         raise
-    except Exception as exc:  # a gap in the checks below must cost one message, never the reading process
+    except Exception as exc:  # a gap in the checks must cost one message, never the reading process
         raise ProtocolError(f"message could not be checked ({type(exc).__name__})") from None
-
-
-def _decode(frames: Any) -> Message:
-    if not isinstance(frames, (list, tuple)) or len(frames) != 2:
-        raise ProtocolError(f"expected 2 frames (header, payload), got {_count(frames)}")
-    raw_header, payload = (_bytes(f) for f in frames)
-    if len(raw_header) > MAX_HEADER_BYTES:
-        raise ProtocolError(f"header of {len(raw_header)} bytes exceeds {MAX_HEADER_BYTES}")
-    try:
-        header = msgpack.unpackb(raw_header, raw=False, strict_map_key=True, max_bin_len=0, max_ext_len=0)
-    except Exception as exc:  # msgpack raises many types for bad bytes; all mean the same here
-        raise ProtocolError(f"header is not valid msgpack: {type(exc).__name__}: {_show(str(exc))}") from None
-    _validate(header, len(payload))
-    declared = {**_COMMON, **_FIELDS[header["kind"]]}
-    return Message({k: v for k, v in header.items() if k in declared}, payload)
 
 
 def _bytes(frame: Any) -> bytes:
@@ -191,8 +165,7 @@ def _show(value: Any, limit: int = 80) -> str:
 def _validate(header: Any, payload_len: int) -> None:
     if not isinstance(header, dict):
         raise ProtocolError(f"header must be a map, got {type(header).__name__}")
-    version = header.get("v")
-    if version != VERSION:
+    if (version := header.get("v")) != VERSION:
         raise ProtocolError(f"protocol version {_show(version)} not supported (this side speaks {VERSION})")
     kind = header.get("kind")
     if not isinstance(kind, str) or kind not in _FIELDS:
@@ -201,31 +174,11 @@ def _validate(header: Any, payload_len: int) -> None:
         if name not in header:
             raise ProtocolError(f"{kind} message lacks field {name!r}")
         if not check(header[name]):
-            raise ProtocolError(f"{kind} field {name!r} must be {check.__doc__}, got {_show(header[name])}")
+            raise ProtocolError(f"{kind} field {name!r} must be {check.what}, got {_show(header[name])}")
     if payload_len > MAX_PAYLOAD_BYTES:
         raise ProtocolError(f"payload of {payload_len} bytes exceeds {MAX_PAYLOAD_BYTES}")
-    expected = header["width"] * header["height"] * 2 if kind == "depth" else 0
     if kind == "depth" and not (header["width"] > 0 and header["height"] > 0):
         raise ProtocolError(f"depth frame size {header['width']}x{header['height']} is not positive")
+    expected = header["width"] * header["height"] * 2 if kind == "depth" else 0
     if payload_len != expected:
         raise ProtocolError(f"{kind} payload is {payload_len} bytes, expected {expected}")
-
-
-def _count(frames: Any) -> str:
-    try:
-        return str(len(frames))
-    except TypeError:
-        return type(frames).__name__
-
-
-# Default endpoints: loopback only. A robot address names the driver's state port; commands go to port + 1.
-DEFAULT_CAMERA = "tcp://127.0.0.1:5555"
-DEFAULT_ROBOT = "tcp://127.0.0.1:5556"
-
-
-def robot_endpoints(robot: str) -> tuple[str, str]:
-    """(state endpoint, command endpoint) of a driver at ``robot`` = tcp://HOST:PORT."""
-    head, sep, port = robot.rpartition(":")
-    if not (robot.startswith("tcp://") and sep and port.isdigit()):
-        raise ValueError(f"robot address must look like tcp://HOST:PORT, got {robot!r}")
-    return robot, f"{head}:{int(port) + 1}"

@@ -1,18 +1,19 @@
-"""Real-time scheduling for the control loop and the driver, where the OS grants it.
+"""What the runtime and the driver ask of the OS: real-time scheduling where granted, and a clean stop.
 
-Robot runtimes run their control threads under SCHED_FIFO so that a CPU-bound job beside them (a training
-run, a compiler) cannot delay a tick past its deadline: a normal-priority process on a busy 2-core machine
-missed 7 of 600 deadlines (issue 47), always waiting for a core, never for its own work. Without the
-permission (CAP_SYS_NICE or an rtprio limit) the next best is a raised nice value; without that, normal
-priority, said once.
+Their control threads run under SCHED_FIFO so that a CPU-bound job beside them (a training run, a compiler)
+cannot delay a tick past its deadline: at normal priority a busy 2-core machine missed 7 of 600 deadlines
+(issue 47), always waiting for a core, never for its own work. Without the permission (CAP_SYS_NICE or an
+rtprio limit) the next best is a raised nice value; without that, normal priority, said once.
 """
 
 from __future__ import annotations
 
 import os
+import signal
+import sys
+import threading
 
-FIFO_PRIORITY = 10
-"""Low among real-time priorities: above every normal process, below the kernel's own threaded IRQs (50)."""
+FIFO_PRIORITY = 10  # low among real-time priorities: above every normal process, below threaded IRQs (50)
 RAISED_NICE = -10
 
 
@@ -30,3 +31,17 @@ def raise_priority() -> tuple[bool, str]:
     except OSError:
         return False, ("normal scheduling priority: no permission for SCHED_FIFO or a raised nice value "
                        "(grant CAP_SYS_NICE or an rtprio limit); deadlines may slip on a busy machine")
+
+
+def announce_priority(prog: str) -> None:
+    """``raise_priority`` and say what was granted, as ``prog``."""
+    raised, granted = raise_priority()
+    print(f"{prog}: {'' if raised else 'WARNING '}{granted}", file=sys.stderr, flush=True)
+
+
+def stop_on_signals() -> threading.Event:
+    """An event that SIGINT and SIGTERM set: the process ends its loop cleanly instead of dying in it."""
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    return stop

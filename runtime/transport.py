@@ -1,23 +1,20 @@
-"""ZeroMQ socket helpers shared by the runtime, franka_driver and hil_sim.
+"""ZeroMQ sockets for the runtime, the driver and hil_sim.
 
-Loopback is the default and needs nothing. Any other endpoint crosses a network, so binding or connecting to
-it requires CurveZMQ keys (encryption + server authentication) and is refused without them. Sockets get
-linger 0 so a process never hangs on exit over unsent messages.
+Loopback is the default and needs nothing. Any other endpoint crosses a network: binding or connecting to it
+requires CurveZMQ keys (encryption + server authentication). Sockets get linger 0: no hang on exit.
 
-Subscribers keep only the newest message: ``zmq.CONFLATE`` breaks our two-frame messages, and a high-water
-mark of 1 alone still hands out the oldest queued message, so ``Newest`` drains everything pending and keeps
-the last valid one. Draining only sees what ZeroMQ has moved into the socket's queue, and ZeroMQ refills a
-full queue from the kernel's TCP buffer only as it is read, so a queue shorter than the messages arriving
-between two reads lets a backlog of old messages build up behind it (a 4-deep queue read every 100 ms under a
-200 Hz state stream fell 3 s behind in 6 s, measured). A subscriber's ``queue`` must therefore hold what
-arrives between reads; it is small only for big messages that come slower than they are read (depth).
+Subscribers keep only the newest message (``Newest``): ``zmq.CONFLATE`` breaks two-frame messages, so it
+drains what is pending and keeps the last valid one. ZeroMQ refills a full queue from the kernel's TCP buffer
+only as it is read, so a queue shorter than what arrives between two reads builds a backlog of old messages
+(a 4-deep queue read every 100 ms under 200 Hz states fell 3 s behind in 6 s, measured): a subscriber's
+``queue`` must hold what arrives between reads.
 """
 
 from __future__ import annotations
 
 import ipaddress
 import time
-from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,12 +35,10 @@ class CurveKeys:
     public: bytes
     secret: bytes
     server_public: bytes | None = None
-    """Z85 public key of the server a client connects to; unused when binding."""
 
     @classmethod
     def generate(cls, server_public: bytes | None = None) -> CurveKeys:
-        public, secret = zmq.curve_keypair()
-        return cls(public, secret, server_public)
+        return cls(*zmq.curve_keypair(), server_public)
 
     @classmethod
     def from_files(cls, secret_file: str | Path, server_public_file: str | Path | None = None) -> CurveKeys:
@@ -66,58 +61,62 @@ def is_loopback(endpoint: str) -> bool:
     if scheme != "tcp" or not rest:
         raise TransportError(f"unsupported endpoint {endpoint!r}; use tcp://HOST:PORT, ipc:// or inproc://")
     host = rest.rpartition(":")[0].strip("[]")
-    if host == "localhost":
-        return True
     try:
-        return ipaddress.ip_address(host).is_loopback
+        return host == "localhost" or ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False  # a hostname, an interface name or '*': all may be reachable from outside
 
 
-def bind(ctx: zmq.Context, socket_type: int, endpoint: str, *, keys: CurveKeys | None = None) -> zmq.Socket:
-    """A socket bound at ``endpoint``; CurveZMQ server keys are required unless it is loopback."""
-    sock = _socket(ctx, socket_type)
+def check_bind(endpoint: str, keys: CurveKeys | None) -> None:
+    """``TransportError`` unless ``endpoint`` is loopback or CurveZMQ keys are given."""
+    if keys is None and not is_loopback(endpoint):
+        raise TransportError(f"refusing to bind {endpoint} without CurveZMQ keys: it is reachable from other "
+                             "hosts; bind 127.0.0.1 or give keys (--curve-secret)")
+
+
+def bind(ctx: zmq.Context, socket_type: int, endpoint: str, *, keys: CurveKeys | None = None, queue: int = 4,
+         max_bytes: int = -1) -> zmq.Socket:
+    """A socket bound at ``endpoint`` (CurveZMQ server keys unless loopback); a peer sending a frame over
+    ``max_bytes`` is disconnected."""
+    check_bind(endpoint, keys)
+    sock = _socket(ctx, socket_type, queue)
+    sock.maxmsgsize = max_bytes  # before bind(), or the listener does not apply it
     if keys is not None:
         sock.curve_secretkey, sock.curve_publickey, sock.curve_server = keys.secret, keys.public, True
-    elif not is_loopback(endpoint):
-        sock.close()
-        raise TransportError(f"refusing to bind {endpoint} without CurveZMQ keys: it is reachable from other "
-                             "hosts; bind 127.0.0.1 or pass keys (CurveKeys.from_files)")
     return _attach(sock, sock.bind, endpoint)
 
 
 def connect(ctx: zmq.Context, socket_type: int, endpoint: str, *, keys: CurveKeys | None = None,
             queue: int = 4) -> zmq.Socket:
-    """A socket connected to ``endpoint``; CurveZMQ client keys (with the server's key) unless loopback.
-    ``queue``: a SUB socket's receive high-water mark, in messages (see the module text)."""
-    sock = _socket(ctx, socket_type, queue)
-    if keys is not None:
-        if keys.server_public is None:
-            sock.close()
-            raise TransportError(f"connecting to {endpoint} with CurveZMQ needs the server's public key")
-        sock.curve_secretkey, sock.curve_publickey = keys.secret, keys.public
-        sock.curve_serverkey = keys.server_public
-    elif not is_loopback(endpoint):
-        sock.close()
+    """A socket connected to ``endpoint``; CurveZMQ client keys (with the server's key) unless loopback."""
+    if keys is None and not is_loopback(endpoint):
         raise TransportError(f"refusing to connect to {endpoint} without CurveZMQ keys: traffic would leave "
                              "this host unauthenticated")
+    if keys is not None and keys.server_public is None:
+        raise TransportError(f"connecting to {endpoint} with CurveZMQ needs the server's public key")
+    sock = _socket(ctx, socket_type, queue)
+    if keys is not None:
+        sock.curve_secretkey, sock.curve_publickey = keys.secret, keys.public
+        sock.curve_serverkey = keys.server_public
     return _attach(sock, sock.connect, endpoint)
 
 
-def _socket(ctx: zmq.Context, socket_type: int, queue: int = 4) -> zmq.Socket:
+def _socket(ctx: zmq.Context, socket_type: int, queue: int) -> zmq.Socket:
+    """``queue``: the high-water mark, in messages, of the direction the socket carries."""
     sock = ctx.socket(socket_type)
     sock.linger = 0
-    if socket_type == zmq.SUB:
+    if socket_type in (zmq.SUB, zmq.PULL):
         sock.rcvhwm = queue
+    else:
+        sock.sndhwm = queue
+    if socket_type == zmq.SUB:
         sock.setsockopt(zmq.SUBSCRIBE, b"")
-    if socket_type in (zmq.PUSH, zmq.PUB):
-        sock.sndhwm = 4
     if socket_type == zmq.PUSH:
         sock.immediate = True  # never queue commands for a driver that is not connected: they would go stale
     return sock
 
 
-def _attach(sock: zmq.Socket, how, endpoint: str) -> zmq.Socket:
+def _attach(sock: zmq.Socket, how: Callable[[str], None], endpoint: str) -> zmq.Socket:
     try:
         how(endpoint)
     except zmq.ZMQError as exc:
@@ -136,31 +135,23 @@ def send(sock: zmq.Socket, frames: list[bytes]) -> bool:
 
 
 class Newest:
-    """Newest-message-only reader of one message kind on a SUB socket.
-
-    Malformed messages are counted and remembered (``rejected``, ``last_error``), never raised: a bad peer
-    must not take the control loop down. Valid messages of other kinds (e.g. the driver's ``status`` on its
-    state socket) are kept aside in ``others``, newest last.
-    """
+    """Newest-message-only reader of one message kind on a SUB socket. Malformed messages are counted
+    (``rejected``, ``last_error``), never raised: a bad peer must not take the control loop down. Valid
+    messages of other kinds (the driver's ``status`` on its state socket) are skipped."""
 
     def __init__(self, sock: zmq.Socket, kind: str) -> None:
         self.sock, self.kind = sock, kind
         self.rejected = 0
         self.last_error = ""
-        self.received = 0
-        self.others: deque[Message] = deque(maxlen=16)
         self._poller = zmq.Poller()
         self._poller.register(sock, zmq.POLLIN)
 
     def poll(self, timeout_s: float) -> tuple[Message, float] | None:
         """Wait up to ``timeout_s`` for traffic, drain it all, return (newest valid message, receive time)."""
         deadline = time.monotonic() + max(timeout_s, 0.0)
-        while True:
-            newest = self.drain()
-            remaining = deadline - time.monotonic()
-            if newest is not None or remaining <= 0:
-                return newest
+        while (newest := self.drain()) is None and (remaining := deadline - time.monotonic()) > 0:
             self._poller.poll(max(1, round(remaining * 1000)))
+        return newest
 
     def drain(self) -> tuple[Message, float] | None:
         """Everything pending, without waiting; the newest valid message or None."""
@@ -177,8 +168,5 @@ class Newest:
                 self.rejected += 1
                 self.last_error = str(exc)[:200] if isinstance(exc, ProtocolError) else type(exc).__name__
                 continue
-            if msg.kind != self.kind:
-                self.others.append(msg)
-                continue
-            self.received += 1
-            newest = (msg, t_receive)
+            if msg.kind == self.kind:
+                newest = (msg, t_receive)

@@ -28,18 +28,15 @@ class StreamMismatch(CameraError):
 
 @dataclass(frozen=True)
 class Frame:
-    """One raw depth frame. Times are ``time.monotonic()`` seconds of this host."""
+    """One raw depth frame: uint16 [height, width] sensor units (0 = no data) of ``depth_scale`` metres.
+    Times are this host's ``time.monotonic()``; ``t_device`` is the camera's own stamp, where it has one."""
 
     depth: np.ndarray
-    """uint16 [height, width] in sensor units, 0 = no data."""
     depth_scale: float
-    """Metres per sensor unit."""
     t_capture: float
     t_receive: float
     number: int
-    """The camera's frame counter (gaps mean dropped frames)."""
     t_device: float | None = None
-    """The camera's own timestamp (seconds, its clock), where it has one."""
 
 
 class Camera(Protocol):
@@ -54,13 +51,9 @@ class Camera(Protocol):
 
 
 def check_stream(name: str, width: int, height: int, spec: DepthSpec) -> None:
-    """Refuse a stream whose size is not the policy's: the fixed crop would see a different field of view.
-
-    For the cameras whose frames carry no intrinsics (hil, replay): another resolution has other
-    intrinsics, so a pixel-space crop would silently show the policy a scene it was not trained on. The d455
-    reader knows its stream's intrinsics and maps any mode onto the policy's view instead
-    (``runtime.preprocess.match_stream``).
-    """
+    """Refuse a stream whose size is not the policy's, for the cameras whose frames carry no intrinsics (hil,
+    replay): another resolution has other intrinsics, so the fixed crop would show the policy another scene.
+    The d455 reader maps any mode onto the policy's view by its intrinsics instead."""
     if (width, height) != (spec.stream_width, spec.stream_height):
         raise StreamMismatch(f"camera {name} streams {width}x{height} depth but the policy expects "
                              f"{spec.stream_width}x{spec.stream_height} (its DepthSpec); record or stream at "

@@ -1,37 +1,27 @@
-"""``python -m runtime.franka_driver --backend franka|mujoco [--bind ADDR]``: serve a robot until SIGTERM."""
+"""``python -m runtime.franka_driver [--bind ADDR]``: serve the real Franka Panda until SIGTERM.
+
+Exit status: 0 stopped by SIGINT/SIGTERM; 1 the robot or a socket failed while serving; 2 bad arguments, keys
+or robot connection. The simulated arm is served the same way by ``python -m hil_sim.driver``.
+"""
 
 from __future__ import annotations
 
 import argparse
-import signal
+import os
 import sys
-import threading
 from collections.abc import Callable
 
 from runtime.franka_driver.backend import Backend, BackendError
-from runtime.franka_driver.server import DriverConfig, DriverServer, allowed_clients, check_bind
+from runtime.franka_driver.franka_backend import FrankaBackend, FrankaConfig
+from runtime.franka_driver.server import DriverConfig, DriverServer, allowed_clients
 from runtime.protocol import DEFAULT_ROBOT, robot_endpoints
-from runtime.realtime import raise_priority
-from runtime.transport import CurveKeys, TransportError
+from runtime.realtime import announce_priority, stop_on_signals
+from runtime.transport import CurveKeys, TransportError, check_bind
 
 
-def _franka(args: argparse.Namespace) -> Backend:
-    from runtime.franka_driver.franka_backend import FrankaBackend, FrankaConfig
-    return FrankaBackend(FrankaConfig(host=args.robot_host, realtime=not args.no_realtime))
-
-
-def _mujoco(args: argparse.Namespace) -> Backend:
-    from runtime.franka_driver.mujoco_backend import standalone
-    return standalone()
-
-
-BACKENDS: dict[str, Callable[[argparse.Namespace], Backend]] = {"franka": _franka, "mujoco": _mujoco}
-
-
-def parse(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m runtime.franka_driver", description=__doc__)
-    p.add_argument("--backend", choices=sorted(BACKENDS), required=True,
-                   help="franka: the real arm (pylibfranka); mujoco: hil_sim's simulated Panda in real time")
+def parser(prog: str, doc: str) -> argparse.ArgumentParser:
+    """The options every driver process takes (this one and ``hil_sim.driver``)."""
+    p = argparse.ArgumentParser(prog=prog, description=doc.split("\n\n")[0], epilog=doc.split("\n\n", 1)[1])
     p.add_argument("--bind", default=DEFAULT_ROBOT,
                    help="state endpoint (PUB); commands are PULLed on port + 1; loopback unless keyed")
     p.add_argument("--state-hz", type=float, default=DriverConfig.state_hz,
@@ -40,16 +30,12 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--curve-clients", metavar="DIR",
                    help="folder of the CurveZMQ public keys (*.key) allowed to connect; required with "
                         "--curve-secret")
-    p.add_argument("--robot-host", default="172.16.0.2", help="franka backend: the robot's FCI address")
-    p.add_argument("--no-realtime", action="store_true", help="franka backend: do not enforce an RT kernel")
-    return p.parse_args(argv)
+    return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = parse(argv)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+def serve(args: argparse.Namespace, open_backend: Callable[[], Backend], name: str) -> int:
+    """Check the options, open the backend and serve it until SIGINT/SIGTERM; the exit status."""
+    stop = stop_on_signals()
     try:
         keys = CurveKeys.from_files(args.curve_secret) if args.curve_secret else None
         if keys is not None and args.curve_clients is None:
@@ -58,16 +44,15 @@ def main(argv: list[str] | None = None) -> int:
         config = DriverConfig(bind=args.bind, state_hz=args.state_hz)
         for endpoint in robot_endpoints(args.bind):
             check_bind(endpoint, keys)  # before the (slow, maybe physical) backend comes up
-        raised, granted = raise_priority()  # before the backend: its threads inherit the priority
-        print(f"franka_driver: {'' if raised else 'WARNING '}{granted}", file=sys.stderr, flush=True)
-        backend = BACKENDS[args.backend](args)
+        announce_priority("franka_driver")  # before the backend: its threads inherit the priority
+        backend = open_backend()
     except (TransportError, BackendError, ValueError) as exc:
         print(f"franka_driver: {exc}", file=sys.stderr)
         return 2
     try:
         with DriverServer(backend, config, keys=keys, clients=clients) as server:
-            print(f"franka_driver: {args.backend} backend serving state on {args.bind} at "
-                  f"{config.state_hz:g} Hz", file=sys.stderr, flush=True)
+            print(f"franka_driver: {name} backend serving state on {args.bind} at {config.state_hz:g} Hz",
+                  file=sys.stderr, flush=True)
             server.serve(stop)
     except (TransportError, BackendError) as exc:
         print(f"franka_driver: {exc}", file=sys.stderr)
@@ -75,6 +60,22 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         backend.close()
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = parser("python -m runtime.franka_driver", __doc__)
+    p.add_argument("--backend", choices=("franka", "mujoco"), default="franka",
+                   help="franka (default): the real arm; mujoco: hands over to `python -m hil_sim.driver`")
+    p.add_argument("--robot-host", default="172.16.0.2", help="the robot's FCI address")
+    p.add_argument("--no-realtime", action="store_true", help="do not enforce an RT kernel (bench tests)")
+    args = p.parse_args(argv)
+    if args.backend == "mujoco":  # the simulated arm lives in hil_sim, which the deploy side never imports
+        given = {"bind": args.bind, "state-hz": args.state_hz, "curve-secret": args.curve_secret,
+                 "curve-clients": args.curve_clients}
+        os.execv(sys.executable, [sys.executable, "-m", "hil_sim.driver",
+                                  *(f"--{k}={v}" for k, v in given.items() if v is not None)])
+    config = FrankaConfig(host=args.robot_host, realtime=not args.no_realtime)
+    return serve(args, lambda: FrankaBackend(config), "franka")
 
 
 if __name__ == "__main__":

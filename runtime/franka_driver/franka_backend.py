@@ -17,26 +17,19 @@ from typing import Any
 import numpy as np
 
 from runtime.franka_driver.backend import BackendError, Reading
-from runtime.franka_driver.kinematics import panda_tcp
-from runtime.franka_driver.limits import DQ_MAX, GRIPPER_MAX_WIDTH
+from runtime.franka_driver.kinematics import DQ_MAX, GRIPPER_MAX_WIDTH, panda_tcp
 
 
 @dataclass(frozen=True)
 class FrankaConfig:
     """Connection and hand settings for the real robot."""
 
-    host: str = "172.16.0.2"
-    """Robot (FCI) address."""
-    realtime: bool = True
-    """Enforce a real-time kernel (libfranka's kEnforce); off only for bench tests."""
-    goal_tolerance: float = 0.01
-    """libfranka's goal tolerance for a joint target, radians."""
-    velocity_fraction: float = 0.5
-    """Joint velocity limit handed to libfranka's interpolator, as a fraction of the datasheet's."""
-    grasp_speed: float = 0.1
-    """Gripper speed, m/s."""
-    grasp_force: float = 40.0
-    """Grasp force, N."""
+    host: str = "172.16.0.2"  # robot (FCI) address
+    realtime: bool = True  # enforce a real-time kernel (libfranka's kEnforce); off only for bench tests
+    goal_tolerance: float = 0.01  # libfranka's goal tolerance for a joint target, radians
+    velocity_fraction: float = 0.5  # of the datasheet's joint velocity limits, for libfranka's interpolator
+    grasp_speed: float = 0.1  # m/s
+    grasp_force: float = 40.0  # N
 
 
 class FrankaBackend:

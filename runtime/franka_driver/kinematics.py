@@ -1,12 +1,19 @@
-"""Forward kinematics of the Franka Panda from its published modified-DH (Craig) parameters.
-
-The real backend needs the end-effector position of a *target* (not only of the measured pose, which
-libfranka reports as ``O_T_EE``) to check the workspace box before the arm gets there.
+"""The Franka Panda's published numbers: joint limits (datasheet, "Robot and interface specifications") and
+forward kinematics from its modified-DH (Craig) parameters. The driver needs the end-effector position of a
+*target* (libfranka reports only the measured pose's, ``O_T_EE``) to check the workspace box before the arm
+gets there.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+DOF = 7
+Q_MIN = np.array([-2.8973, -1.7628, -2.8973, -3.0718, -2.8973, -0.0175, -2.8973])
+Q_MAX = np.array([2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
+DQ_MAX = np.array([2.1750, 2.1750, 2.1750, 2.1750, 2.6100, 2.6100, 2.6100])  # rad/s
+GRIPPER_MAX_WIDTH = 0.08  # Franka Hand opening, metres
+READY_Q = np.array([0.0, -np.pi / 4, 0.0, -3 * np.pi / 4, 0.0, np.pi / 2, np.pi / 4])  # vendor's 'ready'
 
 # (a, d, alpha) per joint, metres and radians; then the flange and the Franka Hand's TCP offset.
 _DH = np.array([

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.franka_driver.limits import DOF, DQ_MAX, Q_MAX, Q_MIN
+from runtime.franka_driver.kinematics import DOF, DQ_MAX, Q_MAX, Q_MIN
 
 
 class CommandRejected(ValueError):

@@ -8,8 +8,7 @@ import time
 import numpy as np
 
 from runtime.franka_driver.backend import BackendError, Reading
-from runtime.franka_driver.kinematics import panda_tcp
-from runtime.franka_driver.limits import READY_Q
+from runtime.franka_driver.kinematics import READY_Q, panda_tcp
 
 
 class KinematicArm:

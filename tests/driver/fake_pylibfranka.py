@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from runtime.franka_driver.limits import READY_Q
+from runtime.franka_driver.kinematics import READY_Q
 
 
 class FrankaException(Exception):

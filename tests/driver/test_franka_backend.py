@@ -5,7 +5,7 @@ import pytest
 
 from runtime.franka_driver.backend import BackendError
 from runtime.franka_driver.franka_backend import FrankaBackend, FrankaConfig
-from runtime.franka_driver.limits import DQ_MAX, READY_Q
+from runtime.franka_driver.kinematics import DQ_MAX, READY_Q
 from tests.driver import fake_pylibfranka as fake
 
 

@@ -5,8 +5,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from runtime.franka_driver.kinematics import panda_tcp
-from runtime.franka_driver.limits import DQ_MAX, Q_MAX, Q_MIN, READY_Q
+from runtime.franka_driver.kinematics import DQ_MAX, Q_MAX, Q_MIN, READY_Q, panda_tcp
 from runtime.franka_driver.safety import CommandRejected, SafetyConfig, SafetyLayer
 
 DT = 0.005

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import zmq
 
-from runtime.franka_driver.limits import DQ_MAX, READY_Q
+from runtime.franka_driver.kinematics import DQ_MAX, READY_Q
 from runtime.franka_driver.server import DriverConfig, DriverServer
 from runtime.protocol import Encoder, decode, robot_endpoints
 from runtime.transport import CurveKeys, TransportError, connect, send

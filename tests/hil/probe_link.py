@@ -2,7 +2,7 @@
 
     python -m tests.hil.probe_link [--flood-s 5] [--kills 10]
 
-Starts ``python -m runtime.franka_driver --backend mujoco`` on a free loopback port and, as separate
+Starts ``python -m hil_sim.driver`` on a free loopback port and, as separate
 senders, throws at it: a header nested 1,000 deep, a garbage flood, a second controller, an out-of-order
 command, and a controller that falls silent (the watchdog: time from its last command to the first holding
 state, repeated). Prints one JSON document: each row's outcome, the driver's state rate before and during the
@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--kills", type=int, default=10)
     args = p.parse_args(argv)
     address = f"tcp://127.0.0.1:{free_port_pair()}"
-    driver = subprocess.Popen([sys.executable, "-m", "runtime.franka_driver", "--backend", "mujoco", "--bind",
+    driver = subprocess.Popen([sys.executable, "-m", "hil_sim.driver", "--bind",
                                address], cwd=REPO, env=subprocess_env(), stderr=subprocess.DEVNULL)
     log, ctx = StateLog(address), zmq.Context()
     try:

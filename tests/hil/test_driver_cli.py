@@ -1,4 +1,6 @@
-"""``python -m runtime.franka_driver --backend mujoco`` as a real process: serves, refuses, stops holding."""
+"""``python -m hil_sim.driver`` (the simulated arm behind runtime.franka_driver's server) as a real process:
+serves, refuses, stops holding. The old ``python -m runtime.franka_driver --backend mujoco`` hands over to
+it."""
 
 import signal
 import subprocess
@@ -13,11 +15,13 @@ from tests.hil.rig import REPO, StateLog, subprocess_env
 from tests.runtime.fakes import free_port_pair
 
 pytestmark = pytest.mark.hil
+SIM_DRIVER = [sys.executable, "-m", "hil_sim.driver"]
+OLD_SIM_DRIVER = [sys.executable, "-m", "runtime.franka_driver", "--backend", "mujoco"]
 
 
 def test_mujoco_driver_process_serves_state_takes_commands_and_stops_on_sigterm(tmp_path):
     addr = f"tcp://127.0.0.1:{free_port_pair()}"
-    cmd = [sys.executable, "-m", "runtime.franka_driver", "--backend", "mujoco", "--bind", addr]
+    cmd = [*SIM_DRIVER, "--bind", addr]
     proc = subprocess.Popen(cmd, cwd=REPO, env=subprocess_env(), stderr=open(tmp_path / "driver.log", "w"))
     log = StateLog(addr)
     ctx = zmq.Context()
@@ -46,18 +50,19 @@ def test_mujoco_driver_process_serves_state_takes_commands_and_stops_on_sigterm(
         log.close()
 
 
-def test_non_loopback_bind_without_keys_exits_2_with_one_line(tmp_path):
-    cmd = [sys.executable, "-m", "runtime.franka_driver", "--backend", "mujoco", "--bind", "tcp://0.0.0.0:5999"]
+@pytest.mark.parametrize("driver", [SIM_DRIVER, OLD_SIM_DRIVER], ids=["hil_sim.driver", "--backend mujoco"])
+def test_non_loopback_bind_without_keys_exits_2_with_one_line(tmp_path, driver):
+    cmd = [*driver, "--bind", "tcp://0.0.0.0:5999"]
     done = subprocess.run(cmd, cwd=REPO, env=subprocess_env(), capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "CurveZMQ" in done.stderr and len(done.stderr.strip().splitlines()) == 1
 
 
-def test_curve_keys_without_a_client_allow_list_exit_2_with_one_line(tmp_path):
+@pytest.mark.parametrize("driver", [SIM_DRIVER, OLD_SIM_DRIVER], ids=["hil_sim.driver", "--backend mujoco"])
+def test_curve_keys_without_a_client_allow_list_exit_2_with_one_line(tmp_path, driver):
     import zmq.auth
 
     zmq.auth.create_certificates(str(tmp_path), "driver")
-    cmd = [sys.executable, "-m", "runtime.franka_driver", "--backend", "mujoco", "--bind", "tcp://0.0.0.0:5999",
-           "--curve-secret", str(tmp_path / "driver.key_secret")]
+    cmd = [*driver, "--bind", "tcp://0.0.0.0:5999", "--curve-secret", str(tmp_path / "driver.key_secret")]
     done = subprocess.run(cmd, cwd=REPO, env=subprocess_env(), capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "--curve-clients" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1

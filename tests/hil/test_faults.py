@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import zmq
 
-from runtime.franka_driver.limits import DQ_MAX
+from runtime.franka_driver.kinematics import DQ_MAX
 from runtime.protocol import Encoder, robot_endpoints
 from tests.hil.rig import start_runtime
 from tests.runtime import handmade

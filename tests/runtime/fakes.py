@@ -10,7 +10,7 @@ import time
 import numpy as np
 import zmq
 
-from runtime.cameras import Frame
+from runtime.cameras.base import Frame
 from runtime.policy import NanActionError
 from runtime.protocol import DOF, Encoder, decode, robot_endpoints
 from tests.runtime.handmade import DELTA, metadata

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 import zmq
 
-from runtime.cameras import CameraEnded, CameraError, StreamMismatch, open_camera
+from runtime.cameras import open_camera
+from runtime.cameras.base import CameraEnded, CameraError, StreamMismatch
 from runtime.preprocess import DepthSpec
 from runtime.protocol import Encoder
 from tests.runtime.fakes import free_port_pair

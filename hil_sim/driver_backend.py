@@ -1,7 +1,7 @@
-"""hil_sim's MuJoCo Panda behind the driver. hil_sim is imported lazily (only ``standalone``), so the driver
-package stays importable, and lean, without it.
+"""hil_sim's MuJoCo Panda as a driver ``Backend``: what ``runtime.franka_driver``'s server drives in the rig.
 
-The world is shared with a physics thread (and in hil_sim a camera thread): every access holds ``lock``.
+The world is shared with a physics thread (and in hil_sim's server a camera thread): every access holds
+``lock``.
 """
 
 from __future__ import annotations
@@ -9,11 +9,11 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
 
 import mujoco
 import numpy as np
 
+from hil_sim.world import ARM_JOINTS, EE_SITE, World
 from runtime.franka_driver.backend import Reading
 from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET
 
@@ -21,14 +21,11 @@ BASE_BODY = "robot_base"
 
 
 class MujocoBackend:
-    """``Backend`` over a ``hil_sim.world.World`` (duck-typed: model, data, q, dq, gripper_opening,
-    set_targets). Joint angles cross it in libfranka's convention, as with the real arm: the model's joint 6
-    reads ``HIL_SIM_Q_OFFSET`` less."""
+    """``Backend`` over a ``World``. Joint angles cross it in libfranka's convention, as with the real arm:
+    the model's joint 6 reads ``HIL_SIM_Q_OFFSET`` less."""
 
-    def __init__(self, world: Any, lock: threading.Lock, *,
+    def __init__(self, world: World, lock: threading.Lock, *,
                  on_close: Callable[[], None] | None = None) -> None:
-        from hil_sim.world import ARM_JOINTS, EE_SITE
-
         self.world, self.lock = world, lock
         m = world.model
         self._qadr = m.jnt_qposadr[[m.joint(n).id for n in ARM_JOINTS]]
@@ -63,15 +60,3 @@ class MujocoBackend:
         self.hold()
         if self._on_close is not None:
             self._on_close()
-
-
-def standalone(kind: str = "cube", seed: int = 0) -> MujocoBackend:
-    """A world of its own, stepped in real time by a physics thread that stops on ``close()``."""
-    from hil_sim.server import RealtimePhysics
-    from hil_sim.world import World
-
-    world = World([kind])
-    world.reset(kind, seed, randomise=False)
-    physics = RealtimePhysics(world)
-    physics.start()
-    return MujocoBackend(world, physics.lock, on_close=physics.stop)
