@@ -11,6 +11,10 @@ Layout (names are a contract):
     data/chunk   float32 [N, Hc, 8]    optional, with labels: the expert's next Hc actions from the step's
                        state (its label of a state a learner reached: ``trainer.student.dagger``); Hc = attrs
                        ``chunk_horizon``. ``data/action`` is then what was executed.
+    data/depth_ddg, data/depth_ddg_nograft  uint16 [N, 96, 128]  optional: DDG depth of each frame, with
+                       and without the simulated geometry grafted back (``trainer.ddg.generate``), made chunk
+                       by chunk
+    meta/ddg_done           bool    [N / chunk]  with DDG depth: which of its chunks are made (attrs ``ddg``)
     meta/episode_ends       int64   [E]     cumulative end index of each stored (successful) episode
     meta/kind               str     [E]     object kind
     meta/seed               int64   [E]
@@ -19,7 +23,10 @@ Layout (names are a contract):
     meta/camera_extrinsics  float64 [E, 4, 4]  world-from-camera, OpenCV axes
     meta/randomisation      str     [E]     JSON of the episode's draws (hil_sim.world.Episode)
     attrs: depth_spec, action_scale, control_rate_hz, depth_scale (0.001), attempted, succeeded, failed,
-           teacher, seed, sensor (with data/depth_sensor), chunk_horizon (with data/labels)
+           teacher, seed, sensor (with data/depth_sensor), chunk_horizon (with data/labels),
+           ddg (with DDG depth: the generator's model, steps, seed, chunk and eta)
+Each depth a student can train on (``DEPTH_SOURCES``) is one of these arrays; ``DemoStore.depth`` reads it
+and refuses one the store lacks or has not finished generating.
 Episodes are appended whole: data arrays first, then the per-episode meta, then ``episode_ends`` last, so
 an interrupted write is cut back to the last complete episode on the next open.
 """
@@ -44,8 +51,32 @@ _META = {"kind": (str, ()), "seed": (np.int64, ()), "crop_window": (np.int32, (2
          "randomisation": (str, ())}
 
 
+
+
+@dataclass(frozen=True)
+class DepthSource:
+    """Where a depth source's frames are stored, and the command that adds them to a store without them."""
+
+    array: str
+    made_by: str = ""
+    """Empty: every store holds the array."""
+
+
+DEPTH_SOURCES = {
+    "gt": DepthSource("data/depth"),
+    "randnoise": DepthSource("data/depth"),  # procedural noise on the clean frames, at sampling time
+    "ddg": DepthSource("data/depth_ddg", "python -m trainer ddg generate"),
+    "ddg_nograft": DepthSource("data/depth_ddg_nograft", "python -m trainer ddg generate"),
+    "sensor": DepthSource("data/depth_sensor", "python -m trainer collect --sensor"),
+}
+"""Depth source -> its stored array. sensor: what a simulated sensor showed at each step."""
+GENERATED = ("ddg", "ddg_nograft")
+"""The sources the DDG generator makes chunk by chunk (``DemoStore.generation_outputs``)."""
+_DDG_DONE = "meta/ddg_done"
+
+
 class DatasetError(OSError):
-    """A demo store that cannot be created, opened or appended to."""
+    """A demo store that cannot be created, opened or appended to, or lacks the depth asked of it."""
 
 
 @dataclass(frozen=True)
@@ -75,8 +106,10 @@ def sizes(spec: DepthSpec) -> str:
 class DemoStore:
     """Append-only episode store; ``DemoStore.open(path)`` to read, ``DemoStore.create`` to write."""
 
-    def __init__(self, root: zarr.Group) -> None:
+    def __init__(self, root: zarr.Group, path: str | Path = "") -> None:
         self.root = root
+        self.path = str(path)
+        """As the caller named it: how messages name the store."""
 
     # --- opening ------------------------------------------------------------------------------------
     @classmethod
@@ -85,7 +118,7 @@ class DemoStore:
         if not (path / "zarr.json").is_file():
             raise DatasetError(f"no demo store at {str(path)!r}")
         try:
-            store = cls(zarr.open_group(str(path), mode=mode))
+            store = cls(zarr.open_group(str(path), mode=mode), path)
             store.root["meta/episode_ends"]
         except (KeyError, ValueError, OSError) as exc:
             raise DatasetError(f"{str(path)!r} is not a demo store: {exc}") from None
@@ -147,7 +180,7 @@ class DemoStore:
             staging.rename(path)
         except OSError as exc:
             raise DatasetError(f"cannot write a demo store at {str(path)!r}: {exc.strerror or exc}") from None
-        return cls(zarr.open_group(str(path), mode="a"))
+        return cls(zarr.open_group(str(path), mode="a"), path)
 
     def _truncate_partial(self) -> None:
         """Cut arrays back to the last complete episode (a write interrupted half way)."""
@@ -236,3 +269,83 @@ class DemoStore:
 
     def _data_arrays(self) -> dict[str, zarr.Array]:
         return {name: arr for name, arr in self.root["data"].arrays()}
+
+    # --- depth sources ------------------------------------------------------------------------------
+    @property
+    def depth_sources(self) -> list[str]:
+        """The depth sources whose array this store holds (generated ones possibly unfinished)."""
+        return [name for name, source in DEPTH_SOURCES.items() if source.array in self.root]
+
+    def depth(self, source: str, steps: int) -> np.ndarray:
+        """The first ``steps`` frames of depth ``source``; refused if the store lacks them or if the generator
+        has not made all of them yet (chunks no shard has reached are zeros)."""
+        if source not in DEPTH_SOURCES:
+            raise DatasetError(f"unknown depth source {source!r}; choose one of {sorted(DEPTH_SOURCES)}")
+        array = DEPTH_SOURCES[source].array
+        if array not in self.root:
+            held = ", ".join(self.depth_sources)
+            raise DatasetError(f"{self.path} has no {array} for depth source {source!r} (make it with "
+                               f"`{DEPTH_SOURCES[source].made_by}`); it holds {held}")
+        if source in GENERATED and _DDG_DONE in self.root:
+            self._check_generated(array, steps)
+        return np.asarray(self.root[array][:steps])
+
+    # --- generated depth (trainer.ddg.generate) -----------------------------------------------------
+    @property
+    def generated_with(self) -> dict | None:
+        """The settings the store's DDG depth was made with, None before the first run."""
+        return self.root.attrs.get("ddg")
+
+    def drop_generated(self) -> None:
+        """Delete the DDG depth, its record of made chunks and its settings (to make it again otherwise)."""
+        for name in (*(DEPTH_SOURCES[s].array for s in GENERATED), _DDG_DONE):
+            if name in self.root:
+                del self.root[name]
+        self.root.attrs.pop("ddg", None)
+
+    def generation_outputs(self, settings: dict, chunk: int) -> tuple[dict[str, zarr.Array], zarr.Array]:
+        """Source -> its array (as long as ``data/depth``, zarr chunks of ``chunk`` frames) and the per-chunk
+        record of which are made, created on the first run with ``settings`` recorded; episodes appended
+        since the last run lengthen them. The caller checks ``settings`` against ``generated_with`` first."""
+        if self.generated_with is None:
+            self.root.attrs["ddg"] = settings
+        shape = self.root["data/depth"].shape
+        n_chunks = -(-shape[0] // chunk)
+        if _DDG_DONE in self.root:
+            self._grow_generated(shape, n_chunks, chunk)
+        outs = {s: self.root.require_array(DEPTH_SOURCES[s].array, shape=shape, dtype="uint16",
+                                           chunks=(chunk, *shape[1:]), fill_value=0) for s in GENERATED}
+        done = self.root.require_array(_DDG_DONE, shape=(n_chunks,), dtype="bool", chunks=(1,),
+                                       fill_value=False)
+        return outs, done
+
+    def _grow_generated(self, shape: tuple[int, ...], n_chunks: int, chunk: int) -> None:
+        """Episodes appended since the last run (``collect`` resumed into the store): lengthen the outputs and
+        the chunk record; a chunk that was the last, partial one then has new frames, so it is to be made
+        again (frames are seeded by index: its old frames come out the same)."""
+        old = self.root[DEPTH_SOURCES[GENERATED[0]].array].shape[0]
+        if old == shape[0]:
+            return
+        for source in GENERATED:
+            self.root[DEPTH_SOURCES[source].array].resize(shape)
+        done = self.root[_DDG_DONE]
+        done.resize((n_chunks,))
+        if old % chunk:
+            done[old // chunk] = False
+
+    def _check_generated(self, array: str, frames: int) -> None:
+        """Raise unless the generated ``array`` of the first ``frames`` frames is all made: frames appended
+        since the last run are missing."""
+        generate = f"`python -m trainer ddg generate --demos {self.path}`"
+        generated = self.root[array].shape[0]
+        if generated < frames:
+            raise DatasetError(f"{self.path}: {array} holds {generated} frames, the episodes {frames}: the "
+                               f"store grew since DDG depth was generated; run {generate} again")
+        chunk = int(self.generated_with["chunk"])
+        needed = -(-frames // chunk)
+        missing = np.flatnonzero(~np.asarray(self.root[_DDG_DONE][:needed]))
+        if missing.size:
+            raise DatasetError(
+                f"{self.path}: DDG depth of {missing.size} of the {needed} chunks ({chunk} frames each) that "
+                f"these episodes span is not generated yet (first: chunk {missing[0]}); finish it with "
+                f"{generate}, or train on fewer episodes (--episodes)")

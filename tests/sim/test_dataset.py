@@ -122,3 +122,60 @@ def test_store_appears_only_complete(tmp_path, monkeypatch) -> None:
     store.append(_episode(3, 0))
     assert DemoStore.open(path).n_episodes == 1 and not (tmp_path / "d.zarr.creating").exists()
     assert zarr.open_group(str(path), mode="r")["meta/episode_ends"].shape == (1,)
+
+
+def _old_store(path) -> None:
+    """A store as main wrote it before DemoStore owned the DDG record (collect --sensor, then 2 of 3 chunks of
+    ``ddg generate --chunk 4``), spelled out array by array: the on-disk names are the contract."""
+    root = zarr.open_group(str(path), mode="w")
+    depth = np.arange(10 * 96 * 128, dtype=np.uint16).reshape(10, 96, 128)
+    for name, value in (("depth", depth), ("depth_sensor", depth // 2), ("depth_ddg", depth + 1),
+                        ("depth_ddg_nograft", depth + 2), ("state", np.zeros((10, 8), np.float32)),
+                        ("action", np.zeros((10, 8), np.float32))):
+        root.create_array(f"data/{name}", shape=value.shape, dtype=value.dtype)[:] = value
+    root["data/depth_ddg"][8:] = 0  # the chunk no shard has reached
+    root.create_array("meta/ddg_done", shape=(3,), dtype="bool", chunks=(1,))[:] = [True, True, False]
+    root.create_array("meta/episode_ends", shape=(2,), dtype=np.int64)[:] = [6, 10]
+    root.attrs.update({"depth_spec": DepthSpec().to_dict(), "action_scale": 0.05, "control_rate_hz": 10.0,
+                       "depth_scale": 0.001, "attempted": 2, "succeeded": 2, "failed": 0, "sensor": "stereo",
+                       "ddg": {"model": "m", "steps": 2, "seed": 0, "chunk": 4}})
+
+
+def test_an_old_store_opens_and_reports_its_depth_sources_and_what_was_generated(tmp_path) -> None:
+    _old_store(tmp_path / "old.zarr")
+    store = DemoStore.open(tmp_path / "old.zarr")
+    assert store.n_episodes == 2 and store.n_steps == 10 and store.attrs["sensor"] == "stereo"
+    assert store.depth_sources == ["gt", "randnoise", "ddg", "ddg_nograft", "sensor"]
+    assert store.generated_with == {"model": "m", "steps": 2, "seed": 0, "chunk": 4}
+    clean = store.root["data/depth"][:]
+    np.testing.assert_array_equal(store.depth("sensor", 10), clean // 2)
+    np.testing.assert_array_equal(store.depth("ddg", 6), clean[:6] + 1)  # episode 0: chunks 0 and 1, made
+    with pytest.raises(DatasetError, match=r"1 of the 3 chunks \(4 frames each\) .* \(first: chunk 2\)"):
+        store.depth("ddg", 10)
+    with pytest.raises(DatasetError, match="unknown depth source 'sharpie'"):
+        store.depth("sharpie", 10)
+
+
+def test_a_store_names_the_command_that_makes_a_depth_source_it_lacks(tmp_path) -> None:
+    store = _create(tmp_path / "d.zarr")
+    store.append(_episode(4, 0))
+    assert store.depth_sources == ["gt", "randnoise"] and store.generated_with is None
+    with pytest.raises(DatasetError, match=r"has no data/depth_ddg for depth source 'ddg' \(make it with "
+                                           r"`python -m trainer ddg generate`\); it holds gt, randnoise"):
+        store.depth("ddg", 4)
+
+
+def test_generated_depth_grows_with_the_store_and_makes_its_partial_chunk_again(tmp_path) -> None:
+    store = _create(tmp_path / "d.zarr")
+    store.append(_episode(6, 0))
+    settings = {"model": "m", "steps": 2, "seed": 0, "chunk": 4}
+    outs, done = store.generation_outputs(settings, chunk=4)
+    assert set(outs) == {"ddg", "ddg_nograft"} and outs["ddg"].shape == (6, 96, 128) and done.shape == (2,)
+    assert outs["ddg"].chunks == (4, 96, 128) and store.generated_with == settings
+    done[:] = True
+    store.append(_episode(5, 1))  # collect resumed: frames 6..10 are new, chunk 1 ([4, 8)) is partly new
+    outs, done = store.generation_outputs(settings, chunk=4)
+    assert outs["ddg_nograft"].shape == (11, 96, 128) and done[:].tolist() == [True, False, False]
+    store.drop_generated()
+    assert store.depth_sources == ["gt", "randnoise"] and store.generated_with is None
+    assert "ddg_done" not in store.root["meta"]

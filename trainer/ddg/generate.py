@@ -1,10 +1,10 @@
 """Add ``data/depth_ddg`` and ``data/depth_ddg_nograft`` to a demo store, batched, resumable and shardable.
 
 Work is split in chunks of ``chunk`` frames (the output arrays' zarr chunks), so each chunk is written by
-exactly one shard and ``meta/ddg_done[chunk]`` records it: a killed run resumes where it stopped, and
-``--shard i/n`` on n machines covers every chunk once; shards may start together (the first to take the
-store's lock file creates the outputs). Each frame's noise is seeded by its index, so the result is the same
-however the work is split.
+exactly one shard and the store records it (``DemoStore.generation_outputs``): a killed run resumes where it
+stopped, and ``--shard i/n`` on n machines covers every chunk once; shards may start together (the first to
+take the store's lock file creates the outputs). Each frame's noise is seeded by its index, so the result is
+the same however the work is split.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 import zarr
 from tqdm import tqdm
 
-from runtime.preprocess import DepthSpec
+from trainer.dataset import DemoStore
 
 from .baselines import DEFAULT_MODEL
 from .model import model_id
@@ -74,18 +74,18 @@ class GenerateConfig:
 
 def generate(cfg: GenerateConfig) -> dict:
     """Fill this shard's missing chunks; returns {"frames", "seconds", "fps"}."""
-    root = _open(cfg.demos)
-    depth = root["data/depth"]
+    store = _open(cfg.demos)
+    depth = store.root["data/depth"]
     n = depth.shape[0]
     i, shards = cfg.shard_pair()
     # a store made by hand (tests) may carry no spec: its frames are then taken to be the model's
-    store_spec = DepthSpec.from_dict(root.attrs["depth_spec"]) if "depth_spec" in root.attrs else None
+    store_spec = store.depth_spec if "depth_spec" in store.root.attrs else None
     gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, mode=cfg.mode,
                     eta=cfg.eta, frames=store_spec)
     gen.check_frames(depth)
-    needed = -(-(_frames_of(root, cfg.episodes) if cfg.episodes else n) // cfg.chunk)  # chunks to fill
+    needed = -(-(_frames_of(store, cfg.episodes) if cfg.episodes else n) // cfg.chunk)  # chunks to fill
     with _exclusive(cfg.demos):  # shards started together: the first creates the outputs, the rest see them
-        outs, done = _outputs(_open(cfg.demos), cfg, depth.shape)  # reopened: attrs as the holder left them
+        outs, done = _outputs(_open(cfg.demos), cfg)  # reopened: attrs as the holder left them
     todo = [k for k in range(needed) if k % shards == i and not done[k]]
     frames, t0 = 0, time.perf_counter()
     bar = tqdm(todo, desc=f"ddg generate shard {cfg.shard}", unit="chunk")
@@ -94,8 +94,8 @@ def generate(cfg: GenerateConfig) -> dict:
         sim = np.asarray(depth[lo:hi])
         parts = [gen(sim[b:b + cfg.batch], np.arange(lo + b, min(hi, lo + b + cfg.batch)))
                  for b in range(0, hi - lo, cfg.batch)]
-        outs["depth_ddg"][lo:hi] = np.concatenate([p[0] for p in parts])
-        outs["depth_ddg_nograft"][lo:hi] = np.concatenate([p[1] for p in parts])
+        outs["ddg"][lo:hi] = np.concatenate([p[0] for p in parts])
+        outs["ddg_nograft"][lo:hi] = np.concatenate([p[1] for p in parts])
         done[k] = True
         frames += hi - lo
         bar.set_postfix(fps=f"{frames / (time.perf_counter() - t0):.1f}")
@@ -106,15 +106,16 @@ def generate(cfg: GenerateConfig) -> dict:
     return stats
 
 
-def _frames_of(root: zarr.Group, episodes: int) -> int:
+def _frames_of(store: DemoStore, episodes: int) -> int:
     """Frames of the store's first ``episodes`` episodes."""
-    ends = np.asarray(root["meta/episode_ends"])
+    ends = store.episode_ends
     if not 0 < episodes <= len(ends):
         raise DemoStoreError(f"--episodes {episodes}: the store holds {len(ends)} episodes")
     return int(ends[episodes - 1])
 
 
-def _open(path: str) -> zarr.Group:
+def _open(path: str) -> DemoStore:
+    """The store for writing; any zarr group with a data/depth array will do (tests make them by hand)."""
     if not path or not Path(path).exists():
         raise DemoStoreError(f"no demo store at {path!r}")
     root = zarr.open_group(path, mode="r+")
@@ -123,25 +124,7 @@ def _open(path: str) -> zarr.Group:
     d = root["data/depth"]
     if d.dtype != np.uint16 or d.ndim != 3:
         raise DemoStoreError(f"{path}: data/depth must be uint16 [N, H, W], got {d.dtype} {d.shape}")
-    return root
-
-
-def check_generated(root: zarr.Group, key: str, frames: int, demos: str) -> None:
-    """Raise if the DDG depth ``key`` of the first ``frames`` frames of the store ``demos`` is not all made: a
-    chunk no shard has reached yet is zeros, and frames appended since the last run are missing."""
-    generate = f"`python -m trainer ddg generate --demos {demos}`"
-    generated = root[key].shape[0]
-    if generated < frames:
-        raise DemoStoreError(f"{key} holds {generated} frames, the episodes {frames}: the store grew since "
-                             f"DDG depth was generated; run {generate} again")
-    chunk = int(root.attrs["ddg"]["chunk"])
-    needed = -(-frames // chunk)
-    missing = np.flatnonzero(~np.asarray(root["meta/ddg_done"][:needed]))
-    if missing.size:
-        raise DemoStoreError(
-            f"DDG depth of {missing.size} of the {needed} chunks ({chunk} frames each) that these episodes "
-            f"span is not generated yet (first: chunk {missing[0]}); finish it with {generate}, or train on "
-            f"fewer episodes (--episodes)")
+    return DemoStore(root, path)
 
 
 @contextmanager
@@ -155,40 +138,15 @@ def _exclusive(path: str) -> Iterator[None]:
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
-def _outputs(root: zarr.Group, cfg: GenerateConfig, shape: tuple[int, ...]):
+def _outputs(store: DemoStore, cfg: GenerateConfig) -> tuple[dict[str, zarr.Array], zarr.Array]:
+    """The store's DDG outputs for ``cfg``'s settings; DDG depth made with others is refused, or dropped with
+    ``--replace``."""
     settings = {"model": model_id(cfg.model), "steps": cfg.steps, "seed": cfg.seed,
                 "chunk": cfg.chunk, **({"eta": cfg.eta} if cfg.eta else {})}  # stores made before eta resume
-    previous = root.attrs.get("ddg")
+    previous = store.generated_with
     if previous is not None and previous != settings:
         if not cfg.replace:
             raise DemoStoreError(f"store already holds DDG depth made with {previous}, not {settings}; "
                                  "pass --replace to drop it and regenerate")
-        for name in ("data/depth_ddg", "data/depth_ddg_nograft", "meta/ddg_done"):
-            if name in root:
-                del root[name]
-        previous = None
-    if previous is None:
-        root.attrs["ddg"] = settings
-    n_chunks = -(-shape[0] // cfg.chunk)
-    if "meta/ddg_done" in root:
-        _grow(root, shape, n_chunks, cfg.chunk)
-    chunks = (cfg.chunk, *shape[1:])
-    outs = {name: root.require_array(f"data/{name}", shape=shape, dtype="uint16", chunks=chunks,
-                                     fill_value=0) for name in ("depth_ddg", "depth_ddg_nograft")}
-    done = root.require_array("meta/ddg_done", shape=(n_chunks,), dtype="bool", chunks=(1,), fill_value=False)
-    return outs, done
-
-
-def _grow(root: zarr.Group, shape: tuple[int, ...], n_chunks: int, chunk: int) -> None:
-    """Episodes appended since the last run (``collect`` resumed into the store): lengthen the outputs and
-    the chunk record; a chunk that was the last, partial one then has new frames, so it is done again
-    (frames are seeded by index: its old frames come out the same)."""
-    old = root["data/depth_ddg"].shape[0]
-    if old == shape[0]:
-        return
-    for name in ("depth_ddg", "depth_ddg_nograft"):
-        root[f"data/{name}"].resize(shape)
-    done = root["meta/ddg_done"]
-    done.resize((n_chunks,))
-    if old % chunk:
-        done[old // chunk] = False
+        store.drop_generated()
+    return store.generation_outputs(settings, cfg.chunk)

@@ -20,15 +20,7 @@ import torch
 from hil_sim.kinematics import ArmKinematics
 from hil_sim.world import TABLE_Z
 from runtime.preprocess import DepthSpec, normalise
-from trainer.dataset import DemoStore, sizes
-
-DEPTH_ARRAYS = {"gt": "data/depth", "randnoise": "data/depth", "ddg": "data/depth_ddg",
-                "ddg_nograft": "data/depth_ddg_nograft", "sensor": "data/depth_sensor"}
-"""Depth source -> stored array. randnoise is procedural: applied to the GT frames at sampling time; sensor is
-what a simulated sensor showed at each step (``collect --sensor``)."""
-MAKE_ARRAY = {"data/depth_ddg": "python -m trainer ddg generate", "data/depth_ddg_nograft":
-              "python -m trainer ddg generate", "data/depth_sensor": "python -m trainer collect --sensor"}
-"""The command that adds a stored array a store lacks."""
+from trainer.dataset import DEPTH_SOURCES, DatasetError, DemoStore, sizes
 
 
 class DemoDataError(ValueError):
@@ -68,22 +60,20 @@ class DemoDataset:
         targets' columns (``privileged_targets``). ``first_frame``: each stack starts with its episode's first
         frame (``StudentConfig.first_frame``). ``gt_share``: the share of stacks drawn from the clean depth
         instead (``FitConfig.gt_share``)."""
-        if depth_source not in DEPTH_ARRAYS:
+        if depth_source not in DEPTH_SOURCES:
             raise DemoDataError(f"unknown depth source {depth_source!r}; "
-                                f"choose one of {sorted(DEPTH_ARRAYS)}")
-        store = DemoStore.open(path)
-        key = DEPTH_ARRAYS[depth_source]
-        if key not in store.root:
-            raise DemoDataError(f"{path} has no {key} for depth source {depth_source!r} "
-                                f"(make it with `{MAKE_ARRAY[key]}`)")
-        self.ends = first_episodes(store.episode_ends, episodes, path)
-        n = int(self.ends[-1])
-        check_generated(store, key, n, path)
+                                f"choose one of {sorted(DEPTH_SOURCES)}")
         if not 0 <= gt_share <= 1:
             raise DemoDataError(f"gt_share must be in [0, 1], got {gt_share}")
-        self.depth = np.asarray(store.root[key][:n])
-        mixed = gt_share and key != DEPTH_ARRAYS["gt"]
-        self.clean = np.asarray(store.root[DEPTH_ARRAYS["gt"]][:n]) if mixed else self.depth
+        store = DemoStore.open(path)
+        self.ends = first_episodes(store.episode_ends, episodes, path)
+        n = int(self.ends[-1])
+        mixed = gt_share and DEPTH_SOURCES[depth_source] != DEPTH_SOURCES["gt"]
+        try:
+            self.depth = store.depth(depth_source, n)
+        except DatasetError as exc:  # the student's own error: a depth source it cannot train on
+            raise DemoDataError(str(exc)) from None
+        self.clean = store.depth("gt", n) if mixed else self.depth
         self.gt_share = gt_share
         self.state = np.asarray(store.root["data/state"][:n], dtype=np.float32)
         self.action = np.asarray(store.root["data/action"][:n], dtype=np.float32)
@@ -170,18 +160,6 @@ def first_episodes(ends: np.ndarray, episodes: int, path: str | Path) -> np.ndar
     if not 0 <= episodes <= len(ends):
         raise DemoDataError(f"--episodes {episodes}: {path} holds {len(ends)} episodes")
     return ends[:episodes or len(ends)]
-
-
-def check_generated(store: DemoStore, key: str, n: int, path: str | Path) -> None:
-    """DDG depth not made yet is zeros: refuse it (``trainer.ddg.generate`` records what it made)."""
-    if key == "data/depth" or "meta/ddg_done" not in store.root:
-        return
-    from trainer.ddg import generate
-
-    try:
-        generate.check_generated(store.root, key, n, str(path))
-    except generate.DemoStoreError as exc:
-        raise DemoDataError(f"{path}: {exc}") from None
 
 
 def object_positions(store: DemoStore) -> np.ndarray | None:

@@ -24,13 +24,13 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
-from trainer.dataset import sizes
+from trainer.dataset import DEPTH_SOURCES, sizes
 from trainer.diffusion import training_target
 from trainer.student import checkpoint
 from trainer.student.argspec import add_dataclass_args, from_args
 from trainer.student.checkpoint import Checkpoint, TrainingInfo
 from trainer.student.config import StudentConfig
-from trainer.student.data import DEPTH_ARRAYS, Batch, DemoDataset
+from trainer.student.data import Batch, DemoDataset
 from trainer.student.ddim import training_scheduler
 from trainer.student.model import StudentPolicy
 
@@ -88,8 +88,8 @@ class FitConfig:
     """torch intra-op threads per process (0 = torch's default)."""
 
     def __post_init__(self) -> None:
-        if self.depth_source not in DEPTH_ARRAYS:
-            raise FitError(f"--depth-source {self.depth_source!r}: choose one of {sorted(DEPTH_ARRAYS)}")
+        if self.depth_source not in DEPTH_SOURCES:
+            raise FitError(f"--depth-source {self.depth_source!r}: choose one of {sorted(DEPTH_SOURCES)}")
         if not 0 <= self.gt_share <= 1:
             raise FitError(f"--gt-share must be in [0, 1], got {self.gt_share}")
         if self.episodes < 0:
