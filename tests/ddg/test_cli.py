@@ -10,8 +10,8 @@ from .conftest import scene
 
 def test_ddg_help_lists_the_commands(capsys):
     assert main(["--help"]) == 0
-    err = capsys.readouterr().err
-    assert all(c in err for c in ("fit", "generate", "metrics"))
+    out = capsys.readouterr().out
+    assert all(c in out for c in ("fit", "generate", "metrics"))
     assert main([]) == 2
 
 

@@ -8,12 +8,14 @@ import json
 import sys
 from pathlib import Path
 
+from trainer.argspec import add_dataclass_args, from_args
+from trainer.menu import Menu
 from trainer.student import checkpoint
-from trainer.student.argspec import add_dataclass_args, from_args
 from trainer.student.config import StudentConfig
 
 
-def cmd_init(argv: list[str]) -> int:
+def init(argv: list[str]) -> int:
+    """``student init``: write an untrained checkpoint."""
     p = argparse.ArgumentParser(prog="python -m trainer student init",
                                 description="Write a freshly initialised (untrained) student checkpoint with "
                                 "identity normalisation; export it for tests and demos of the plumbing.")
@@ -27,37 +29,16 @@ def cmd_init(argv: list[str]) -> int:
     return 0
 
 
-def cmd_fit(argv: list[str]) -> int:
-    from trainer.student.train import main as fit_main
-    return fit_main(argv)
+MENU = Menu("python -m trainer student", {
+    "fit": ("train the student on demos (eq. 10, EMA, checkpoints, resume)", "trainer.student.train:main"),
+    "recipe": ("the student that grasps: demos, DAgger rounds, export, evaluation",
+               "trainer.student.recipe:main"),
+    "readout": ("a depth student's perception errors on labelled frames (M1)",
+                "trainer.student.readout:main"),
+    "init": ("write an untrained checkpoint (test fixtures)", "trainer.student.cli:init"),
+    "probe": ("offline action error of an exported student against demos", "trainer.student.probe:main"),
+})
+main = MENU.main
 
-
-def cmd_recipe(argv: list[str]) -> int:
-    from trainer.student.recipe import main as recipe_main
-    return recipe_main(argv)
-
-
-def cmd_readout(argv: list[str]) -> int:
-    from trainer.student.readout import main as readout_main
-    return readout_main(argv)
-
-
-def cmd_probe(argv: list[str]) -> int:
-    from trainer.student.probe import main as probe_main
-    return probe_main(argv)
-
-
-HANDLERS = {"fit": (cmd_fit, "train the student on demos (eq. 10, EMA, checkpoints, resume)"),
-            "recipe": (cmd_recipe, "the student that grasps: demos, DAgger rounds, export, evaluation"),
-            "readout": (cmd_readout, "a depth student's perception errors on labelled frames (M1)"),
-            "init": (cmd_init, "write an untrained checkpoint (test fixtures)"),
-            "probe": (cmd_probe, "offline action error of an exported student against demos")}
-
-
-def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] not in HANDLERS:
-        listing = "\n".join(f"  {name:<7} {help_}" for name, (_, help_) in HANDLERS.items())
-        print(f"usage: python -m trainer student <command> [--help]\n\ncommands:\n{listing}", file=sys.stderr)
-        return 0 if argv[:1] in (["-h"], ["--help"]) else 2
-    return HANDLERS[argv[0]][0](argv[1:])
+if __name__ == "__main__":
+    sys.exit(main())

@@ -32,11 +32,11 @@ import torch
 
 from hil_sim.objects import GROUPS
 from runtime.preprocess import DepthSpec
+from trainer.argspec import add_dataclass_args, from_args
 from trainer.dataset import DatasetError, DemoStore
 from trainer.eval.success import evaluate
 from trainer.sim.env import EnvConfig
 from trainer.student import checkpoint
-from trainer.student.argspec import add_dataclass_args, from_args
 from trainer.student.checkpoint import TrainingInfo
 from trainer.student.config import StudentConfig
 from trainer.student.dagger import RoundSpec, collect_round

@@ -24,10 +24,10 @@ from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
+from trainer.argspec import add_dataclass_args, from_args
 from trainer.dataset import DEPTH_SOURCES, sizes
 from trainer.diffusion import training_target
 from trainer.student import checkpoint
-from trainer.student.argspec import add_dataclass_args, from_args
 from trainer.student.checkpoint import Checkpoint, TrainingInfo
 from trainer.student.config import StudentConfig
 from trainer.student.data import Batch, DemoDataset

@@ -1,5 +1,5 @@
-"""``python -m trainer teacher fit|bench|plot``: train the PPO teacher, measure vectorised env throughput,
-draw learning curves.
+"""``python -m trainer teacher fit|bench|plot|smoothness``: train the PPO teacher, measure vectorised env
+throughput, draw learning curves, compare policies' smoothness.
 
   fit    DAgger warm start from the reactive scripted expert (unless --dagger-episodes 0), then PPO within
          --steps / --budget-minutes; checkpoint, progress.csv and learning_curve.png in --out; --resume
@@ -12,7 +12,6 @@ draw learning curves.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 import time
@@ -21,55 +20,24 @@ from pathlib import Path
 import numpy as np
 
 from hil_sim.objects import ObjectError, select_kinds
-from trainer.config_docs import field_docs
+from trainer.argspec import add_dataclass_args, from_args
+from trainer.menu import Menu
 from trainer.teacher.normaliser import NormaliserError
 from trainer.teacher.ppo import VEC_KINDS, TeacherConfig, TeacherError, make_vec_env, train
 from trainer.teacher.progress import plot_curves
 from trainer.teacher.smoothness import measure
 
-
-def _add_config_flags(p: argparse.ArgumentParser) -> None:
-    docs = field_docs(TeacherConfig)
-    for f in dataclasses.fields(TeacherConfig):
-        if f.name == "objects":
-            continue
-        flag = "--" + f.name.replace("_", "-")
-        if f.name == "net":
-            p.add_argument(flag, type=int, nargs="+", default=list(f.default), help="actor/critic layers")
-        else:
-            p.add_argument(flag, type=type(f.default), default=f.default,
-                           help=f"{docs.get(f.name, '')} (default {f.default})")
+PROG = "python -m trainer teacher"
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m trainer teacher", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    sub = p.add_subparsers(dest="command", required=True)
-    fit = sub.add_parser("fit", help="train the PPO teacher")
-    fit.add_argument("--out", type=Path, required=True, help="checkpoint folder (created or resumed)")
-    fit.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
-    fit.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
-    _add_config_flags(fit)
-    bench = sub.add_parser("bench", help="vectorised env steps/s, subproc vs dummy")
-    bench.add_argument("--steps", type=int, default=400, help="vectorised steps per setting")
-    bench.add_argument("--n-envs", type=int, default=2)
-    bench.add_argument("--json", type=Path, help="write the figures here")
-    plot = sub.add_parser("plot", help="learning-curve PNG from progress.csv files")
-    plot.add_argument("curves", nargs="+", help="LABEL=PATH/progress.csv")
-    plot.add_argument("--png", type=Path, required=True)
-    smooth = sub.add_parser("smoothness", help="eq. 7 smoothness and success of policies")
-    smooth.add_argument("--policy", action="append", required=True, help="scripted | ppo:CKPT (repeatable)")
-    smooth.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds")
-    smooth.add_argument("--episodes", type=int, default=40)
-    smooth.add_argument("--seed", type=int, default=10_000)
-    smooth.add_argument("--workers", type=int, default=2)
-    smooth.add_argument("--json", type=Path, help="write the figures here")
-    return p
-
-
-def _fit(args: argparse.Namespace) -> int:
-    values = {f.name: getattr(args, f.name) for f in dataclasses.fields(TeacherConfig) if f.name != "objects"}
-    config = TeacherConfig(objects=select_kinds(args.objects), **{**values, "net": tuple(values["net"])})
+def fit(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog=f"{PROG} fit")
+    p.add_argument("--out", type=Path, required=True, help="checkpoint folder (created or resumed)")
+    p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
+    p.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
+    add_dataclass_args(p, TeacherConfig, skip=("objects",))  # --objects: a group name or a list
+    args = p.parse_args(argv)
+    config = from_args(TeacherConfig, args, objects=select_kinds(args.objects))
     summary = train(config, args.out, resume=args.resume)
     plot_curves({args.out.name: args.out / "progress.csv"}, args.out / "learning_curve.png")
     print(json.dumps({k: v for k, v in summary.items() if k != "config"}, indent=2))
@@ -92,7 +60,12 @@ def bench_vec(vec: str, n_envs: int, steps: int) -> float:
         venv.close()
 
 
-def _bench(args: argparse.Namespace) -> int:
+def bench(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog=f"{PROG} bench")
+    p.add_argument("--steps", type=int, default=400, help="vectorised steps per setting")
+    p.add_argument("--n-envs", type=int, default=2)
+    p.add_argument("--json", type=Path, help="write the figures here")
+    args = p.parse_args(argv)
     result = {f"{vec}_steps_per_s": round(bench_vec(vec, args.n_envs, args.steps), 1) for vec in VEC_KINDS}
     result.update(n_envs=args.n_envs, steps=args.steps)
     print(json.dumps(result))
@@ -101,7 +74,11 @@ def _bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _plot(args: argparse.Namespace) -> int:
+def plot(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog=f"{PROG} plot")
+    p.add_argument("curves", nargs="+", help="LABEL=PATH/progress.csv")
+    p.add_argument("--png", type=Path, required=True)
+    args = p.parse_args(argv)
     curves = {}
     for item in args.curves:
         label, sep, path = item.partition("=")
@@ -112,7 +89,15 @@ def _plot(args: argparse.Namespace) -> int:
     return 0
 
 
-def _smoothness(args: argparse.Namespace) -> int:
+def smoothness(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(prog=f"{PROG} smoothness")
+    p.add_argument("--policy", action="append", required=True, help="scripted | ppo:CKPT (repeatable)")
+    p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds")
+    p.add_argument("--episodes", type=int, default=40)
+    p.add_argument("--seed", type=int, default=10_000)
+    p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--json", type=Path, help="write the figures here")
+    args = p.parse_args(argv)
     kinds = select_kinds(args.objects)
     results = [measure(spec, kinds, args.episodes, seed=args.seed, workers=args.workers)
                for spec in args.policy]
@@ -126,17 +111,13 @@ def _smoothness(args: argparse.Namespace) -> int:
     return 0
 
 
-COMMANDS = {"fit": _fit, "bench": _bench, "plot": _plot, "smoothness": _smoothness}
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return COMMANDS[args.command](args)
-    except (TeacherError, NormaliserError, ObjectError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-
+MENU = Menu(PROG, {
+    "fit": ("train the PPO teacher", "trainer.teacher.cli:fit"),
+    "bench": ("vectorised env steps/s, subproc vs dummy", "trainer.teacher.cli:bench"),
+    "plot": ("learning-curve PNG from progress.csv files", "trainer.teacher.cli:plot"),
+    "smoothness": ("eq. 7 smoothness and success of policies", "trainer.teacher.cli:smoothness"),
+}, errors=(TeacherError, NormaliserError, ObjectError, OSError))
+main = MENU.main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -70,6 +70,7 @@ class TeacherConfig:
     """Initial log std of the Gaussian actor: small after the warm start so exploration does not wreck it
     (0 from scratch)."""
     net: tuple[int, ...] = (256, 256)
+    """actor/critic layers"""
     max_steps: int = 150
     """Episode length in control steps (the env's limit; shorter only for quick tests)."""
     checkpoint_every: int = 10_000
