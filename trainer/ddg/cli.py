@@ -3,8 +3,6 @@ its flags make (``trainer.argspec.run_config``)."""
 
 from __future__ import annotations
 
-import sys
-
 from trainer.argspec import run_config
 from trainer.menu import Menu
 
@@ -19,6 +17,3 @@ MENU = Menu("python -m trainer ddg", {
               "trainer.eval.ddg_throughput:bench"),
 }, errors=(ValueError,), call=run_config)  # every DDG input error is a ValueError with a one-line message
 main = MENU.main
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from trainer.argspec import add_dataclass_args, from_args
@@ -39,6 +38,3 @@ MENU = Menu("python -m trainer student", {
     "probe": ("offline action error of an exported student against demos", "trainer.student.probe:main"),
 })
 main = MENU.main
-
-if __name__ == "__main__":
-    sys.exit(main())
