@@ -51,8 +51,6 @@ _META = {"kind": (str, ()), "seed": (np.int64, ()), "crop_window": (np.int32, (2
          "randomisation": (str, ())}
 
 
-
-
 @dataclass(frozen=True)
 class DepthSource:
     """Where a depth source's frames are stored, and the command that adds them to a store without them."""
@@ -109,7 +107,7 @@ class DemoStore:
     def __init__(self, root: zarr.Group, path: str | Path = "") -> None:
         self.root = root
         self.path = str(path)
-        """As the caller named it: how messages name the store."""
+        """How messages name the store."""
 
     # --- opening ------------------------------------------------------------------------------------
     @classmethod
