@@ -1,0 +1,119 @@
+"""How precisely can the object's offset from the hand be read, given perfect keypoints? (issue 42, lever 4)
+
+A small MLP regresses the offset (object centre minus grasp site, m) from the true pixels of the object and
+the grasp site (the labels the fine keypoints are supervised to) and the hand's pose by forward kinematics,
+with and without the depth under those two pixels, trained on one labelled store and measured on others
+(the expert's held-out frames and a student's own). Keypoint noise of a few pixels is then added at test to
+see how precise the keypoints must be. Prints one JSON object.
+
+    python research/readout_ceiling.py --train STORE[@A:B] ... --test NAME=STORE[@A:B] ... [--steps 3000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import torch
+import zarr
+from torch import nn
+
+from trainer.sim.labels import HAND_PX, OBJECT_PX, OFFSET
+from trainer.student.model import hand_pose
+
+
+def depth_at(depth_mm: np.ndarray, px: np.ndarray) -> np.ndarray:
+    """Depth (m) at spatial-softmax coordinates ``px`` [N, 2] (nearest pixel, clamped to the image)."""
+    n, h, w = depth_mm.shape
+    u = np.clip(np.rint((px[:, 0] + 1) / 2 * (w - 1)), 0, w - 1).astype(int)
+    v = np.clip(np.rint((px[:, 1] + 1) / 2 * (h - 1)), 0, h - 1).astype(int)
+    return depth_mm[np.arange(n), v, u].astype(np.float32) / 1000.0
+
+
+VARIANTS = ("pixels", "pixels+depth", "relative+depth")
+"""What the MLP reads: both pixels and the hand's pose by forward kinematics; the same with the depth under
+the two pixels; or only image-space quantities (the pixels' difference, the hand's pixel, both depths and
+their difference), where an error of the camera's pose shifts both points alike and cancels."""
+
+
+def inputs(store: dict, variant: str, pixel_noise: float, rng: np.random.Generator) -> np.ndarray:
+    labels, h, w = store["labels"], *store["depth"].shape[1:]
+    step = np.array([2 / (w - 1), 2 / (h - 1)], np.float32)  # one pixel in [-1, 1] units
+    obj = labels[:, OBJECT_PX] + rng.normal(0, pixel_noise, (len(labels), 2)).astype(np.float32) * step
+    hand = labels[:, HAND_PX] + rng.normal(0, pixel_noise, (len(labels), 2)).astype(np.float32) * step
+    z_obj, z_hand = depth_at(store["depth"], obj)[:, None], depth_at(store["depth"], hand)[:, None]
+    parts = {"pixels": [obj, hand, store["hand"]],
+             "pixels+depth": [obj, hand, store["hand"], z_obj, z_hand],
+             "relative+depth": [obj - hand, hand, z_obj, z_hand, z_obj - z_hand]}[variant]
+    return np.concatenate(parts, axis=1).astype(np.float32)
+
+
+def load(spec: str) -> dict:
+    """A labelled store, ``PATH`` or ``PATH@A:B`` for its episodes A to B-1."""
+    path, _, episodes = spec.partition("@")
+    z = zarr.open(path, mode="r")
+    ends = np.asarray(z["meta/episode_ends"])
+    a, b = (int(i) for i in episodes.split(":")) if episodes else (0, len(ends))
+    rows = slice(ends[a - 1] if a else 0, ends[b - 1])
+    state = torch.from_numpy(np.asarray(z["data/state"][rows], np.float32))
+    with torch.no_grad():
+        hand = hand_pose(state).numpy()
+    return {"labels": np.asarray(z["data/labels"][rows]), "depth": np.asarray(z["data/depth"][rows]),
+            "hand": hand}
+
+
+def merged(stores: list[dict]) -> dict:
+    return {k: np.concatenate([s[k] for s in stores]) for k in stores[0]}
+
+
+def fit(x: np.ndarray, y: np.ndarray, steps: int, seed: int) -> nn.Module:
+    torch.manual_seed(seed)
+    mean, std = x.mean(0), x.std(0) + 1e-6
+    net = nn.Sequential(nn.Linear(x.shape[1], 256), nn.ReLU(), nn.Linear(256, 256), nn.ReLU(),
+                        nn.Linear(256, 3))
+    xt, yt = torch.from_numpy((x - mean) / std), torch.from_numpy(y * 100)  # cm
+    opt = torch.optim.AdamW(net.parameters(), lr=1e-3)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+    for _ in range(steps):
+        idx = torch.randint(0, len(xt), (512,))
+        loss = nn.functional.mse_loss(net(xt[idx]), yt[idx])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+    net.mean, net.std = mean, std
+    return net
+
+
+def errors_cm(net: nn.Module, x: np.ndarray, y: np.ndarray) -> dict:
+    with torch.no_grad():
+        pred = net(torch.from_numpy((x - net.mean) / net.std)).numpy()
+    err = np.linalg.norm(pred - y * 100, axis=1)
+    near = np.linalg.norm(y, axis=1) < 0.05
+    return {"median": round(float(np.median(err)), 3), "p90": round(float(np.percentile(err, 90)), 3),
+            "near_median": round(float(np.median(err[near])), 3) if near.any() else None}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--train", nargs="+", required=True, help="PATH[@A:B] stores to fit on")
+    p.add_argument("--test", nargs="+", required=True, help="NAME=STORE")
+    p.add_argument("--steps", type=int, default=3000)
+    p.add_argument("--noise", type=float, nargs="+", default=[0.0, 0.5, 1.0, 2.0], help="keypoint noise, px")
+    args = p.parse_args()
+    torch.set_num_threads(1)
+    train = merged([load(spec) for spec in args.train])
+    tests = {name: load(path) for name, path in (t.split("=", 1) for t in args.test)}
+    report = {}
+    for variant in VARIANTS:
+        rng = np.random.default_rng(0)
+        net = fit(inputs(train, variant, 0.0, rng), train["labels"][:, OFFSET], args.steps, 0)
+        report[variant] = {f"{name} noise {noise}px": errors_cm(net, inputs(s, variant, noise, rng),
+                                                                s["labels"][:, OFFSET])
+                           for name, s in tests.items() for noise in args.noise}
+    print(json.dumps(report, indent=1))
+
+
+if __name__ == "__main__":
+    main()
