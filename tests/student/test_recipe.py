@@ -210,3 +210,18 @@ def test_a_depth_recipe_runs_its_stages_and_measures_its_readout(tmp_path):
         assert readout["frames"] > 0 and readout["all"]["offset_cm_median"] > 0
     assert DemoStore.open(out / "data" / "round1.zarr").attrs["learner"].startswith("student:")
     assert json.loads((out / "eval_unseen.json").read_text())["objects"] == list(GROUPS["unseen"])
+
+
+def test_one_bad_batch_moves_the_weights_no_further_than_the_clip_allows():
+    """A loss a million times too large gives gradients of norm far above the limit; the step uses them
+    scaled down to it (without the clip the gradients keep their norm)."""
+    from trainer.student.distill import optimise
+
+    torch.manual_seed(0)
+    net = torch.nn.Linear(4, 2)
+    optim = torch.optim.SGD(net.parameters(), lr=1.0)
+    before = [p.detach().clone() for p in net.parameters()]
+    loss = 1e6 * net(torch.randn(8, 4)).pow(2).sum()
+    norm = optimise(net, optim, loss, max_grad_norm=0.5)
+    moved = torch.cat([(p.detach() - b).flatten() for p, b in zip(net.parameters(), before, strict=True)])
+    assert norm > 1e3 and float(moved.norm()) == pytest.approx(0.5, rel=1e-4)
