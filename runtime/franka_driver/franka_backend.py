@@ -40,14 +40,16 @@ class FrankaBackend:
             import pylibfranka as lib  # optional dependency: only the real robot needs it
         self._lib = lib
         # pylibfranka's exception types do not share one base (NetworkException is a RuntimeError).
-        self._errors = (lib.FrankaException, lib.NetworkException, lib.InvalidOperationException)
+        self._errors = (lib.FrankaException, lib.NetworkException, lib.InvalidOperationException,
+                        lib.RealtimeException)
         self.config = config
         rt = lib.RealtimeConfig.kEnforce if config.realtime else lib.RealtimeConfig.kIgnore
         try:
             self._robot = lib.Robot(config.host, rt)
             self._gripper = lib.Gripper(config.host)
         except self._errors as exc:
-            raise BackendError(f"cannot connect to the Franka at {config.host!r}: {exc}") from exc
+            hint = " (--no-realtime on a bench machine)" if isinstance(exc, lib.RealtimeException) else ""
+            raise BackendError(f"cannot connect to the Franka at {config.host!r}: {exc}{hint}") from exc
         self._handler: Any = None
         self._last_q: np.ndarray | None = None
         self._gripper_closed: bool | None = None

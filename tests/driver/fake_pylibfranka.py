@@ -30,6 +30,10 @@ class InvalidOperationException(RuntimeError):
     pass
 
 
+class RealtimeException(RuntimeError):
+    pass
+
+
 class RealtimeConfig(enum.Enum):
     kEnforce = 0
     kIgnore = 1
@@ -43,6 +47,7 @@ class World:
     q: np.ndarray = field(default_factory=lambda: READY_Q.copy())
     refuse_targets: bool = False
     refuse_connect: bool = False
+    no_realtime_kernel: bool = False
     gripper_done: threading.Event = field(default_factory=threading.Event)
 
 
@@ -53,6 +58,8 @@ class Robot:
     def __init__(self, ip: str, realtime_config: RealtimeConfig = RealtimeConfig.kEnforce) -> None:
         if WORLD.refuse_connect:
             raise NetworkException(f"libfranka: cannot connect to {ip}")
+        if WORLD.no_realtime_kernel and realtime_config is RealtimeConfig.kEnforce:
+            raise RealtimeException("libfranka: Running kernel does not have realtime capabilities.")
         WORLD.calls.append(("Robot", ip, realtime_config))
         self.controlled = False
 

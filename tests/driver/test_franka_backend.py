@@ -31,6 +31,13 @@ def test_connection_failure_is_a_backend_error(world):
         backend()
 
 
+def test_a_kernel_without_realtime_is_a_backend_error_that_names_the_switch(world):
+    world.no_realtime_kernel = True
+    with pytest.raises(BackendError, match="realtime capabilities.*--no-realtime"):
+        backend()
+    backend(realtime=False)  # the bench switch connects
+
+
 def test_first_target_configures_async_handler_with_scaled_velocity_limits(world):
     b = backend(velocity_fraction=0.5)
     b.command(q_target=READY_Q + 0.01, gripper_closed=False)
@@ -103,5 +110,7 @@ def test_real_pylibfranka_has_the_api_the_fake_mimics():
     handler.JointPositionTarget(joint_positions=list(READY_Q))
     for name in ("read_once", "stop"):
         assert hasattr(lib.Robot, name)
+    for name in ("FrankaException", "NetworkException", "InvalidOperationException", "RealtimeException"):
+        assert issubclass(getattr(lib, name), Exception)
     for name in ("move", "grasp", "read_once"):
         assert hasattr(lib.Gripper, name)
