@@ -1,8 +1,10 @@
-"""Where a policy's failed episodes closed the gripper, beside its successful ones (issue 42, lever 3).
+"""How a policy's failed episodes closed the gripper, beside its successful ones (issue 42, lever 3).
 
-Runs the policy over the same seeds as ``trainer evaluate`` (10000..) on the given kinds and prints, for
-the successes and the failures apart, the median horizontal distance between the object's centre and the grasp
-site at the first close, the median height offset and the median episode length; then each failure's offset.
+Runs the policy over the same seeds as ``trainer evaluate`` (10000..) on the given kinds (clean depth) and, at
+the first step it commands the gripper shut, reads the simulator's labels (``trainer.sim.labels``): the object
+centre's offset from the grasp site, and how far the fingers' closing axis is turned from the object's narrow
+axis (0 degrees: the fingers close across the object's narrow side; round kinds have no such axis). Prints the
+medians for the successes and the failures apart, then each failure.
 
     python research/m0_failures.py oracle:CKPT [--kinds banana pear] [--episodes 40]
 """
@@ -10,12 +12,41 @@ site at the first close, the median height offset and the median episode length;
 from __future__ import annotations
 
 import argparse
+from functools import partial
 
 import numpy as np
+import torch
 
-from trainer.policies import depth_spec
-from trainer.sim.env import EnvConfig
-from trainer.sim.rollout import Job, rollouts
+from trainer.policies import Observation, depth_spec, make_policy
+from trainer.sim.env import EnvConfig, GraspEnv
+from trainer.sim.labels import GRASP_YAW, OFFSET, frame_labels
+from trainer.sim.rollout import Job, observe, start_episode
+from trainer.student.model import hand_pose, into_fingers
+
+
+def yaw_error_deg(labels: np.ndarray, state: np.ndarray) -> float:
+    """Angle between the fingers' closing axis and the object's narrow axis (nan for a round kind)."""
+    doubled = torch.from_numpy(labels[None, GRASP_YAW].astype(np.float32))
+    if float(doubled.norm()) == 0.0:
+        return float("nan")
+    cos2, sin2 = into_fingers(doubled, hand_pose(torch.from_numpy(state[None].astype(np.float32))))[0]
+    return abs(float(np.degrees(np.arctan2(float(sin2), float(cos2)) / 2)))
+
+
+def at_first_close(env: GraspEnv, policy, job: Job) -> tuple[bool, int, np.ndarray, float]:
+    """(success, steps, object - grasp site in cm at the first close, yaw error in degrees there)."""
+    info = start_episode(env, policy, job)
+    obs, steps, close = env.observation(), 0, (np.full(3, np.nan), float("nan"))
+    while True:
+        observation = Observation(obs, partial(observe, None, env, info.get("depth"), "none"), info["state"])
+        action = np.asarray(policy.act(observation), np.float32)
+        if np.isnan(close[0]).all() and action[7] > 0:
+            labels = frame_labels(env)
+            close = (labels[OFFSET] * 100, yaw_error_deg(labels, info["state"]))
+        obs, _, terminated, truncated, info = env.step(action)
+        steps += 1
+        if terminated or truncated:
+            return bool(info["success"]), steps, *close
 
 
 def main() -> None:
@@ -25,24 +56,23 @@ def main() -> None:
     p.add_argument("--episodes", type=int, default=40)
     args = p.parse_args()
     kinds = tuple(args.kinds)
-    config = EnvConfig(objects=kinds, randomise=True, depth=depth_spec(args.policy), render_depth=False)
-    jobs = [Job(10_000 + i, kinds[i % len(kinds)]) for i in range(args.episodes)]
-    rows = []
-    for r in rollouts(config, args.policy, jobs, workers=1, sensor_spec="clean", restore="none"):
-        offset = r.closed_at[1] * 100 if r.closed_at else np.full(3, np.nan)
-        rows.append((r.kind, r.success, r.steps, offset))
+    env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=depth_spec(args.policy)))
+    policy = make_policy(args.policy)
+    rows = [(job.kind, *at_first_close(env, policy, job))
+            for job in (Job(10_000 + i, kinds[i % len(kinds)]) for i in range(args.episodes))]
     for success in (True, False):
         chosen = [row for row in rows if row[1] == success]
-        if not chosen:
-            continue
-        offsets = np.array([row[3] for row in chosen])
-        apart = np.nanmedian(np.linalg.norm(offsets[:, :2], axis=1))
-        height, steps = np.nanmedian(offsets[:, 2]), np.median([row[2] for row in chosen])
-        print(f"{'successes' if success else 'failures'} {len(chosen)}: closes {apart:.2f} cm apart "
-              f"horizontally, height offset {height:.2f} cm, {steps:.0f} steps (medians)")
-    for kind, success, steps, offset in rows:
+        if chosen:
+            offsets = np.array([row[3] for row in chosen])
+            apart = np.nanmedian(np.linalg.norm(offsets[:, :2], axis=1))
+            yaw = np.nanmedian([row[4] for row in chosen])
+            print(f"{'successes' if success else 'failures'} {len(chosen)}: closes {apart:.2f} cm apart "
+                  f"horizontally, height offset {np.nanmedian(offsets[:, 2]):.2f} cm, fingers {yaw:.0f} deg "
+                  f"off the narrow axis (medians)")
+    for kind, success, steps, offset, yaw in rows:
         if not success:
-            print(f"  failed {kind}: {steps} steps, closed at object - hand {np.round(offset, 2)} cm")
+            print(f"  failed {kind}: {steps} steps, closed at object - hand {np.round(offset, 2)} cm, "
+                  f"{yaw:.0f} deg")
 
 
 if __name__ == "__main__":
