@@ -59,11 +59,18 @@ def load(spec: str) -> dict:
     state = torch.from_numpy(np.asarray(z["data/state"][rows], np.float32))
     with torch.no_grad():
         hand = hand_pose(state).numpy()
+    lengths = np.diff(np.concatenate([[0], ends]))[a:b]
+    episode = np.repeat(np.arange(b - a), lengths)
     return {"labels": np.asarray(z["data/labels"][rows]), "depth": np.asarray(z["data/depth"][rows]),
-            "hand": hand}
+            "hand": hand, "episode": episode}
 
 
 def merged(stores: list[dict]) -> dict:
+    """One store of several; episode numbers kept apart."""
+    first = 0
+    for store in stores:
+        store["episode"] = store["episode"] + first
+        first = store["episode"].max() + 1
     return {k: np.concatenate([s[k] for s in stores]) for k in stores[0]}
 
 
@@ -86,13 +93,18 @@ def fit(x: np.ndarray, y: np.ndarray, steps: int, seed: int) -> nn.Module:
     return net
 
 
-def errors_cm(net: nn.Module, x: np.ndarray, y: np.ndarray) -> dict:
+def errors_cm(net: nn.Module, x: np.ndarray, y: np.ndarray, episode: np.ndarray) -> dict:
+    """Error medians (all frames, near the object) and the per-episode bias: the norm of an episode's mean
+    error over its near frames, the part of the error a closed loop cannot average away."""
     with torch.no_grad():
         pred = net(torch.from_numpy((x - net.mean) / net.std)).numpy()
-    err = np.linalg.norm(pred - y * 100, axis=1)
+    diff = pred - y * 100
+    err = np.linalg.norm(diff, axis=1)
     near = np.linalg.norm(y, axis=1) < 0.05
+    bias = [np.linalg.norm(diff[near & (episode == e)].mean(0)) for e in np.unique(episode[near])]
     return {"median": round(float(np.median(err)), 3), "p90": round(float(np.percentile(err, 90)), 3),
-            "near_median": round(float(np.median(err[near])), 3) if near.any() else None}
+            "near_median": round(float(np.median(err[near])), 3) if near.any() else None,
+            "near_bias_median": round(float(np.median(bias)), 3) if bias else None}
 
 
 def main() -> None:
@@ -110,7 +122,7 @@ def main() -> None:
         rng = np.random.default_rng(0)
         net = fit(inputs(train, variant, 0.0, rng), train["labels"][:, OFFSET], args.steps, 0)
         report[variant] = {f"{name} noise {noise}px": errors_cm(net, inputs(s, variant, noise, rng),
-                                                                s["labels"][:, OFFSET])
+                                                                s["labels"][:, OFFSET], s["episode"])
                            for name, s in tests.items() for noise in args.noise}
     print(json.dumps(report, indent=1))
 
