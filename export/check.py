@@ -103,16 +103,15 @@ def run_check(model_path: Path, ckpt_path: Path | None = None, repeats: int = 30
     if ckpt is not None:
         ort_ms = _torch_parity(doc, policy, ckpt, repeats, threads, trials)
     else:
+        feeds = example_feeds(meta, recorded[0] if recorded else reference.REFERENCE_SEED)
         if recorded is not None:
-            seed, actions = recorded
-            got = policy.session.run(["actions"], example_feeds(meta, seed))[0]
+            got = policy.session.run(["actions"], feeds)[0]
             doc.update(parity_against="reference recorded at export",
-                       max_abs_err=float(np.abs(got - actions).max()))
+                       max_abs_err=float(np.abs(got - recorded[1]).max()))
         else:
             name = Path(meta.training_data.get("checkpoint") or "(none recorded)").name
             doc["parity_skipped"] = (f"the file records no reference actions and its checkpoint {name} "
                                      "is not here; pass --checkpoint CKPT")
-        feeds = example_feeds(meta)
         ort_ms = timed(lambda: policy.session.run(["actions"], feeds), repeats)
     doc.update(ort_ms=statistics.median(ort_ms), ort_p99_ms=float(np.percentile(ort_ms, 99)),
                metadata=json.loads(meta.to_json()))
