@@ -12,7 +12,6 @@ medians for the successes and the failures apart, then each failure.
 from __future__ import annotations
 
 import argparse
-from functools import partial
 
 import numpy as np
 import torch
@@ -20,7 +19,7 @@ import torch
 from trainer.policies import Observation, depth_spec, make_policy
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, OFFSET, frame_labels
-from trainer.sim.rollout import Job, observe, start_episode
+from trainer.sim.rollout import Job, run_episode
 from trainer.student.model import hand_pose, into_fingers
 
 
@@ -33,20 +32,23 @@ def yaw_error_deg(labels: np.ndarray, state: np.ndarray) -> float:
     return abs(float(np.degrees(np.arctan2(float(sin2), float(cos2)) / 2)))
 
 
-def at_first_close(env: GraspEnv, policy, job: Job) -> tuple[bool, int, np.ndarray, float]:
-    """(success, steps, object - grasp site in cm at the first close, yaw error in degrees there)."""
-    info = start_episode(env, policy, job)
-    obs, steps, close = env.observation(), 0, (np.full(3, np.nan), float("nan"))
-    while True:
-        observation = Observation(obs, partial(observe, None, env, info.get("depth"), "none"), info["state"])
-        action = np.asarray(policy.act(observation), np.float32)
-        if np.isnan(close[0]).all() and action[7] > 0:
-            labels = frame_labels(env)
-            close = (labels[OFFSET] * 100, yaw_error_deg(labels, info["state"]))
-        obs, _, terminated, truncated, info = env.step(action)
-        steps += 1
-        if terminated or truncated:
-            return bool(info["success"]), steps, *close
+class FirstClose:
+    """Wraps a policy and reads the labels (offset in cm, yaw error in degrees) the first time it closes."""
+
+    def __init__(self, policy, env: GraspEnv) -> None:
+        self.policy, self.env = policy, env
+        self.close = (np.full(3, np.nan), float("nan"))
+
+    def reset(self, info: dict) -> None:
+        self.policy.reset(info)
+        self.close = (np.full(3, np.nan), float("nan"))
+
+    def act(self, observation: Observation) -> np.ndarray:
+        action = np.asarray(self.policy.act(observation), np.float32)
+        if np.isnan(self.close[0]).all() and action[7] > 0:
+            labels = frame_labels(self.env)
+            self.close = (labels[OFFSET] * 100, yaw_error_deg(labels, observation.state))
+        return action
 
 
 def main() -> None:
@@ -57,9 +59,11 @@ def main() -> None:
     args = p.parse_args()
     kinds = tuple(args.kinds)
     env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=depth_spec(args.policy)))
-    policy = make_policy(args.policy)
-    rows = [(job.kind, *at_first_close(env, policy, job))
-            for job in (Job(10_000 + i, kinds[i % len(kinds)]) for i in range(args.episodes))]
+    policy = FirstClose(make_policy(args.policy), env)
+    rows = []
+    for job in (Job(10_000 + i, kinds[i % len(kinds)]) for i in range(args.episodes)):
+        rollout = run_episode(env, policy, job)
+        rows.append((job.kind, rollout.success, rollout.steps, *policy.close))
     for success in (True, False):
         chosen = [row for row in rows if row[1] == success]
         if chosen:
