@@ -1,0 +1,118 @@
+"""The depth student's perception feeding the privileged head (issue 42: which half of the student misses).
+
+A depth student (``perception="depth"``) reads the object's facts from depth (its readout) and its own head
+also reads the raw depth features. Here the readout's facts go instead into a ``perception="privileged"``
+head (M0: trained on the true facts only), in torch, with chunks executed as the exported students' are. If
+this grasps far more often than the depth student itself, its head is what loses the grasps (it leans on the
+raw features, which its own states never taught), not the readout's error.
+
+    python research/composed_policy.py DEPTH_STUDENT.onnx HEAD_CKPT [--objects seen] [--episodes 60] \
+        [--true offset yaw size]
+
+``--true`` takes those facts from the simulator instead of the readout: which fact's error costs the grasps.
+
+The ONNX file names the depth crop and frame stack; its checkpoint (``DEPTH_STUDENT.onnx``'s folder,
+``ckpt.pt``) is the perception. Seeds 10000.., as ``trainer evaluate``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from hil_sim.objects import select_kinds
+from runtime.policy import Policy as RuntimePolicy
+from runtime.preprocess import FrameStack, normalise
+from trainer.dataset import DEPTH_SCALE
+from trainer.eval.stats import wilson_interval
+from trainer.policies import Observation
+from trainer.sim.env import EnvConfig, GraspEnv
+from trainer.sim.labels import GRASP_YAW, OFFSET, READOUT, SIZE, facts
+from trainer.sim.rollout import Job, run_episode
+from trainer.student import checkpoint
+from trainer.student.ddim import ddim_plan, denoise
+from trainer.student.onnx_policy import to_env_actions
+
+DDIM_STEPS = 4
+GROUPS = {"offset": OFFSET, "yaw": GRASP_YAW, "size": SIZE}
+
+
+def facts_row(obs: Observation, extent: np.ndarray) -> np.ndarray:
+    return facts(obs.privileged, extent)[:READOUT].astype(np.float32)
+
+
+class ComposedPolicy:
+    def __init__(self, onnx_path: Path, head_path: Path, true: tuple[str, ...] = ()) -> None:
+        torch.set_num_threads(1)
+        self.meta = RuntimePolicy(onnx_path).metadata
+        self.eye = checkpoint.load(onnx_path.parent / "ckpt.pt").policy()
+        head = checkpoint.load(head_path)
+        self.head, self.config = head.policy(), head.config
+        self.plan = ddim_plan(head.config.train_timesteps, DDIM_STEPS)
+        self.frames = FrameStack(self.meta.obs_horizon, self.meta.first_frame)
+        self.queue: deque[np.ndarray] = deque()
+        self.rng = np.random.default_rng(0)
+        self.true = [GROUPS[name] for name in true]
+        self.extent = np.zeros(3)
+
+    def reset(self, env_info: dict) -> None:
+        self.frames.reset()
+        self.queue.clear()
+        self.rng = np.random.default_rng(env_info["episode"]["seed"])
+        self.extent = np.asarray(env_info["object_half_extent"], float)
+
+    def act(self, obs: Observation) -> np.ndarray:
+        if len(self.queue) < self.meta.obs_horizon:
+            stack = self.frames.push(normalise(obs.depth, DEPTH_SCALE, self.meta.preprocess))
+        if not self.queue:
+            state = torch.from_numpy(obs.state[None].astype(np.float32))
+            noise = self.rng.standard_normal((1, self.config.action_horizon, self.config.action_dim))
+            with torch.no_grad():
+                _, facts, _ = self.eye.perceive(torch.from_numpy(stack[None]), state)
+                facts = self.eye.label_norm.unnormalise(facts)
+                truth = torch.from_numpy(facts_row(obs, self.extent))
+                for group in self.true:
+                    facts[:, group] = truth[group]
+                facts = self.head.label_norm.normalise(facts)
+                cond = self.head.fuse(facts.new_zeros(1, 0), facts, state)
+                x = denoise(self.head, cond, torch.from_numpy(noise.astype(np.float32)), self.plan,
+                            self.config.prediction)
+                chunk = self.head.action_norm.unnormalise(x)[0].numpy()
+            self.queue.extend(to_env_actions(chunk[: self.config.exec_horizon], 1.0))
+        return self.queue.popleft()
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("student", type=Path)
+    p.add_argument("head", type=Path)
+    p.add_argument("--objects", default="seen")
+    p.add_argument("--episodes", type=int, default=60)
+    p.add_argument("--true", nargs="*", default=[], choices=sorted(GROUPS))
+    p.add_argument("--out", type=Path)
+    args = p.parse_args()
+    kinds = select_kinds(args.objects)
+    policy = ComposedPolicy(args.student, args.head, tuple(args.true))
+    env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=policy.meta.preprocess))
+    by_kind: dict[str, list[bool]] = {}
+    for i in range(args.episodes):
+        job = Job(10_000 + i, kinds[i % len(kinds)])
+        by_kind.setdefault(job.kind, []).append(bool(run_episode(env, policy, job).success))
+        done = sum(map(sum, by_kind.values()))
+        print(f"{i + 1}/{args.episodes}: {done} grasped", flush=True)
+    wins = sum(map(sum, by_kind.values()))
+    lo, hi = wilson_interval(wins, args.episodes)
+    result = {"true": args.true, "success": wins / args.episodes, "ci95": [lo, hi], "episodes": args.episodes,
+              "by_kind": {k: sum(v) / len(v) for k, v in by_kind.items()}}
+    print(json.dumps(result))
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()
