@@ -8,8 +8,8 @@ import torch
 from trainer.student import checkpoint
 from trainer.student.cli import main as student_main
 from trainer.student.config import StudentConfig, StudentConfigError
-from trainer.student.model import StudentPolicy, hand_pose
-from trainer.student.perception import SpatialSoftmax
+from trainer.student.model import PerceptionStudent, StudentPolicy, hand_pose
+from trainer.student.perception import GEOMETRY_GAIN, SpatialSoftmax, geometry
 
 TINY = StudentConfig(width=8, head_dims=(16, 32), state_features=16, step_features=16)
 
@@ -68,8 +68,28 @@ def test_spatial_softmax_reads_where_the_peak_is():
     torch.testing.assert_close(pool(fmap), torch.tensor([[1.0, -1.0], [-1.0, 1.0]]), atol=1e-4, rtol=0)
 
 
+def test_geometry_reads_the_depth_under_each_keypoint():
+    frame = torch.zeros(1, 1, 8, 8)
+    frame[0, 0, :4, :4] = 0.2  # the object's cell (top left of 2 x 2)
+    frame[0, 0, 4:, 4:] = 0.5  # the hand's (bottom right)
+    attention = torch.zeros(1, 2, 4)
+    attention[0, 0, 0] = attention[0, 1, 3] = 1.0
+    fine = torch.tensor([[[-1.0, -1.0], [1.0, 1.0]]])
+    got = geometry(fine, attention, frame, torch.Size([2, 2])) / GEOMETRY_GAIN
+    torch.testing.assert_close(got, torch.tensor([[-2.0, -2.0, 0.2, 0.5, -0.3]]))
+
+
+@pytest.mark.parametrize("stride, cells", [(8, 16 * 12), (4, 32 * 24)])
+def test_the_fine_keypoints_attend_over_the_map_of_their_stride(stride, cells):
+    perception = PerceptionStudent(StudentConfig(perception="depth", width=8, fine_stride=stride,
+                                                 geometric=True)).perception
+    fine_map, _ = perception.maps(torch.rand(1, 3, 96, 128))
+    assert perception.fine.locate(fine_map)[1].shape[-1] == cells
+
+
 @pytest.mark.parametrize("kwargs, match", [
     ({"width": 12}, "width"),
+    ({"fine_stride": 2}, "fine_stride"),
     ({"head_dims": (16, 20)}, "head_dims"),
     ({"action_horizon": 10, "head_dims": (16, 32, 64)}, "action_horizon"),
     ({"exec_horizon": 17}, "exec_horizon"),

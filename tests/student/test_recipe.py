@@ -116,14 +116,15 @@ def test_training_stacks_are_the_runtimes(tmp_path):
             np.testing.assert_array_equal(batch.chunk[0].numpy(), ep["chunk"][t])
 
 
-def test_perception_student_exports_with_parity(tmp_path):
+@pytest.mark.parametrize("variant", [[], ["--fine-stride", "4", "--geometric"]])
+def test_perception_student_exports_with_parity(tmp_path, variant):
     from export.__main__ import main as export_main
     from export.check import run_check
     from trainer.student.cli import main as student_main
 
     ckpt, out = tmp_path / "p.pt", tmp_path / "p.onnx"
     assert student_main(["init", "--out", str(ckpt), "--perception", "depth", "--prediction", "v_prediction",
-                         *TINY]) == 0
+                         *TINY, *variant]) == 0
     assert export_main([str(ckpt), "--ddim-steps", "4", "--out", str(out)]) == 0
     assert run_check(out, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
 

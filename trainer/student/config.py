@@ -86,7 +86,15 @@ class StudentConfig:
     facts instead of depth (no encoder; the oracle, milestone M0; not exportable). "": the earlier students'
     object head and its options below."""
     fine_keypoints: int = 16
-    """``perception="depth"``: keypoints of the stride-8 map (the first two are the supervised ones)."""
+    """``perception="depth"``: keypoints of the fine map (the first two are the supervised ones)."""
+    fine_stride: int = 8
+    """``perception="depth"``: the fine keypoints' map, 8 (16 x 12 cells at 128 x 96) or 4 (32 x 24: the
+    stride-8 map upsampled onto the first stage's, as a feature pyramid does): a keypoint within a cell is
+    placed by the softmax's blend of neighbours, and a pixel of keypoint error costs ~1 cm of offset."""
+    geometric: bool = False
+    """``perception="depth"``: the readout also reads the two supervised keypoints' difference and the depths
+    under them (each keypoint's attention-weighted depth of the latest frame) and their difference: the
+    offset in image terms, where an error of the camera's pose moves both points alike and cancels."""
 
     @property
     def depth_channels(self) -> int:
@@ -108,6 +116,8 @@ class StudentConfig:
         if self.perception and earlier:
             raise StudentConfigError(f"perception={self.perception!r} reads the hand pose and its own facts: "
                                      f"drop {', '.join(earlier)}")
+        if self.fine_stride not in (4, 8):
+            raise StudentConfigError(f"fine_stride must be 4 or 8, got {self.fine_stride}")
         if self.fine_keypoints < 2:
             raise StudentConfigError(f"fine_keypoints must be >= 2 (two are supervised), got "
                                      f"{self.fine_keypoints}")

@@ -229,7 +229,8 @@ class PerceptionStudent(nn.Module):
         """Facts in metres -> standardised units: centre = mean, half_range = std over the training steps."""
         depth = config.perception == "depth"
         self.perception = (Perception(config.depth_channels, config.width, config.keypoints,
-                                      config.fine_keypoints) if depth else None)
+                                      config.fine_keypoints, config.fine_stride, config.geometric)
+                           if depth else None)
         features = self.perception.out_features if depth else 0
         inputs = config.state_dim + HAND_FEATURES + READOUT + 2
         self.state_mlp = nn.Sequential(nn.Linear(inputs, config.state_features), nn.ReLU(),

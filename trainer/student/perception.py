@@ -57,11 +57,15 @@ class SpatialSoftmax(nn.Module):
         self.out_features = 2 * keypoints
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        b, _, h, w = x.shape
+        return self.locate(x)[0].flatten(1)
+
+    def locate(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(keypoints [B, K, 2], their attention over the map's cells [B, K, h*w])."""
+        _, _, h, w = x.shape
         grid = torch.stack([_coords(w, x.device).repeat(h), _coords(h, x.device).repeat_interleave(w)],
                            dim=-1)  # [h*w, (x, y)]
-        attention = torch.softmax(self.keypoints(x).flatten(2), dim=-1)  # [B, K, h*w]
-        return (attention @ grid).reshape(b, -1)
+        attention = torch.softmax(self.keypoints(x).flatten(2), dim=-1)
+        return attention @ grid, attention
 
 
 def _coords(n: int, device: torch.device) -> torch.Tensor:
@@ -90,23 +94,59 @@ class ResNet18(nn.Module):
         return self.pool(self.blocks(self.stem(x)))
 
 
-class Perception(nn.Module):
-    """Depth stack [B, To, H, W] + normalised hand pose [B, 9] -> (features [B, F], readout [B, READOUT]
-    in standardised label units, fine keypoints [B, K, 2] in [-1, 1] image coordinates)."""
+GEOMETRY_FEATURES = 5
+"""``geometric`` readout inputs: the supervised keypoints' difference (x, y) and the depths under them."""
+GEOMETRY_GAIN = 10.0
+"""Scales those inputs so that a centimetre is ~0.1 (a pixel is 0.016 in keypoint units, a centimetre of depth
+0.008 after ``runtime.preprocess.normalise``), where the readout's first layer starts out sensitive."""
 
-    def __init__(self, channels: int, width: int, keypoints: int, fine_keypoints: int) -> None:
+
+class Perception(nn.Module):
+    """Depth stack [B, To, H, W] (newest frame last) + normalised hand pose [B, 9] -> (features [B, F],
+    readout [B, READOUT] in standardised label units, fine keypoints [B, K, 2] in [-1, 1] image
+    coordinates)."""
+
+    def __init__(self, channels: int, width: int, keypoints: int, fine_keypoints: int, fine_stride: int = 8,
+                 geometric: bool = False) -> None:
         super().__init__()
         self.resnet = ResNet18(channels, width, keypoints)
+        # stride 4: the stride-8 map upsampled beside the first stage's (stride 4), mixed by one convolution
+        self.pyramid = (nn.Sequential(nn.Conv2d(3 * width, 2 * width, 3, 1, 1, bias=False),
+                                      nn.GroupNorm(_groups(2 * width), 2 * width), nn.ReLU())
+                        if fine_stride == 4 else None)
         self.fine = SpatialSoftmax(2 * width, fine_keypoints)
+        self.geometric = geometric
         self.out_features = self.resnet.out_features + self.fine.out_features + 8 * width
-        self.readout = nn.Sequential(nn.Linear(self.out_features + HAND_FEATURES, 256), nn.ReLU(),
+        inputs = self.out_features + HAND_FEATURES + (GEOMETRY_FEATURES if geometric else 0)
+        self.readout = nn.Sequential(nn.Linear(inputs, 256), nn.ReLU(),
                                      nn.Linear(256, 256), nn.ReLU(), nn.Linear(256, READOUT))
 
     def forward(self, depth: torch.Tensor, hand: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        fine_map, last = self.maps(depth)
+        fine, attention = self.fine.locate(fine_map)
+        features = torch.cat([self.resnet.pool(last), fine.flatten(1), last.mean(dim=(2, 3))], dim=-1)
+        inputs = [features, hand]
+        if self.geometric:
+            inputs.append(geometry(fine, attention, depth[:, -1:], fine_map.shape[-2:]))
+        return features, self.readout(torch.cat(inputs, dim=-1)), fine
+
+
+    def maps(self, depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(the fine keypoints' map, the last stage's map) of a depth stack."""
         r = self.resnet
-        stride8 = r.blocks[:4](r.stem(depth))  # stages 1-2
+        stride4 = r.blocks[:2](r.stem(depth))  # stage 1
+        stride8 = r.blocks[2:4](stride4)  # stage 2
         last = r.blocks[4:](stride8)
-        fine = self.fine(stride8)
-        features = torch.cat([r.pool(last), fine, last.mean(dim=(2, 3))], dim=-1)
-        readout = self.readout(torch.cat([features, hand], dim=-1))
-        return features, readout, fine.reshape(fine.shape[0], -1, 2)
+        if self.pyramid is None:
+            return stride8, last
+        up = nn.functional.interpolate(stride8, size=stride4.shape[-2:], mode="nearest")
+        return self.pyramid(torch.cat([stride4, up], dim=1)), last
+
+
+def geometry(fine: torch.Tensor, attention: torch.Tensor, frame: torch.Tensor, cells: torch.Size
+             ) -> torch.Tensor:
+    """The object keypoint minus the hand keypoint (x, y), the depth under each (the frame averaged over each
+    cell, weighted by the keypoint's attention) and their difference, times ``GEOMETRY_GAIN``: [B, 5]."""
+    cell_depth = nn.functional.adaptive_avg_pool2d(frame, cells).flatten(1)  # [B, h*w]
+    z = (attention[:, :SUPERVISED_KEYPOINTS] * cell_depth[:, None]).sum(-1)  # [B, 2]: object, hand
+    return GEOMETRY_GAIN * torch.cat([fine[:, 0] - fine[:, 1], z, z[:, :1] - z[:, 1:]], dim=-1)

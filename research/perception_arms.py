@@ -1,0 +1,107 @@
+"""Perception variants refitted side by side from one depth student (issue 42, M1: the readout's error).
+
+Each arm starts from the same recipe checkpoint (tensors whose names and shapes match are copied; the
+readout's first layer keeps its trained columns and starts the new inputs at zero, so a ``geometric`` arm
+begins as the source's function) and is refitted with ``trainer.student.distill`` on the same stores for the
+same steps. Then each arm's readout is measured (``trainer.student.readout``) on held-out stores, and,
+exported, it is evaluated closed loop as ``trainer evaluate`` does. Prints and writes one JSON per arm.
+
+    python research/perception_arms.py --init CKPT --stores S0 S1 ... --test NAME=STORE ... --out DIR \\
+        [--arms base=8 s4g=4g] [--steps 2000] [--episodes 60]
+
+An arm is NAME=STRIDE[g]: the fine keypoints' stride (8 or 4), and g for the geometric readout inputs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import torch
+
+from hil_sim.objects import GROUPS
+from trainer.dataset import DemoStore
+from trainer.eval.success import evaluate
+from trainer.student import checkpoint
+from trainer.student.checkpoint import Checkpoint
+from trainer.student.config import StudentConfig
+from trainer.student.distill import DistillConfig, distill
+from trainer.student.model import PerceptionStudent
+from trainer.student.readout import errors, readouts
+from trainer.student.steps import LabelledSteps
+from trainer.student.train import CKPT_NAME
+
+
+def arm_config(base: StudentConfig, spec: str) -> StudentConfig:
+    return dataclasses.replace(base, fine_stride=int(spec.rstrip("g")), geometric=spec.endswith("g"))
+
+
+def transplant(source: Checkpoint, config: StudentConfig) -> Checkpoint:
+    """``source``'s weights in a network of ``config``: matching tensors copied, a wider first readout layer
+    keeps the source's columns and zeros for the new ones, the rest fresh."""
+    net = PerceptionStudent(config)
+    state = net.state_dict()
+    for name, tensor in source.ema.items():
+        if name not in state:
+            continue
+        if state[name].shape == tensor.shape:
+            state[name] = tensor.clone()
+        elif tensor.dim() == 2 and tensor.shape[0] == state[name].shape[0]:  # the readout's first layer
+            state[name] = torch.cat([tensor, tensor.new_zeros(tensor.shape[0],
+                                                              state[name].shape[1] - tensor.shape[1])], 1)
+    return Checkpoint(config, source.info, ema=state, model={k: v.clone() for k, v in state.items()})
+
+
+def run_arm(name: str, spec: str, source: Checkpoint, data: LabelledSteps, tests: dict[str, Path],
+            args: argparse.Namespace) -> dict:
+    out = args.out / name
+    out.mkdir(parents=True, exist_ok=True)
+    init = out / "init.pt"
+    if not init.is_file():
+        checkpoint.save(init, transplant(source, arm_config(source.config, spec)))
+    cfg = DistillConfig(steps=args.steps, batch=args.batch, lr=args.lr, warmup=min(200, args.steps // 10))
+    fit = distill(data, out, arm_config(source.config, spec), cfg, source.info, init)
+    result = {"arm": name, "spec": spec, "fit": fit}
+    for test, store in tests.items():
+        estimate, labels = readouts(out / CKPT_NAME, store)
+        result[test] = errors(estimate, labels, DemoStore.open(store).episode_ends)
+    onnx = out / "student.onnx"
+    if not onnx.is_file():
+        subprocess.run([sys.executable, "-m", "export", str(out / CKPT_NAME), "--ddim-steps", "4", "--out",
+                        str(onnx)], check=True, stdout=subprocess.DEVNULL)
+    if args.episodes:
+        run = evaluate(f"student:{onnx}", GROUPS["seen"], args.episodes, workers=1)
+        result["seen"] = {k: run[k] for k in ("success_rate", "ci95", "per_object", "first_close")}
+    (out / "result.json").write_text(json.dumps(result, indent=1))
+    return result
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--init", type=Path, required=True)
+    p.add_argument("--stores", type=Path, nargs="+", required=True)
+    p.add_argument("--test", nargs="*", default=[], help="NAME=STORE: readout measured on these")
+    p.add_argument("--arms", nargs="+", default=["base=8", "s4g=4g"])
+    p.add_argument("--steps", type=int, default=2000)
+    p.add_argument("--batch", type=int, default=128)
+    p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--episodes", type=int, default=60)
+    p.add_argument("--threads", type=int, default=1)
+    p.add_argument("--out", type=Path, required=True)
+    args = p.parse_args()
+    torch.set_num_threads(args.threads)
+    source = checkpoint.load(args.init)
+    cfg = source.config
+    data = LabelledSteps(args.stores, cfg.obs_horizon, cfg.action_horizon, depth=True)
+    tests = {k: Path(v) for k, v in (t.split("=", 1) for t in args.test)}
+    for arm in args.arms:
+        name, _, spec = arm.partition("=")
+        print(json.dumps(run_arm(name, spec, source, data, tests, args)), flush=True)
+
+
+if __name__ == "__main__":
+    main()
