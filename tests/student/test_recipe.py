@@ -226,3 +226,29 @@ def test_one_bad_batch_moves_the_weights_no_further_than_the_clip_allows():
     norm = optimise(net, optim, loss, max_grad_norm=0.5)
     moved = torch.cat([(p.detach() - b).flatten() for p, b in zip(net.parameters(), before, strict=True)])
     assert norm > 1e3 and float(moved.norm()) == pytest.approx(0.5, rel=1e-4)
+
+
+def test_a_shifted_stack_carries_its_pixel_labels_along():
+    """Every sample's marked pixel lands where its shifted labels say, in every frame of its stack, and the
+    offset label (the object from the hand) is left as it was."""
+    from trainer.student.distill import shifted
+    from trainer.student.steps import StepBatch
+
+    h, w, n = 96, 128, 16
+    ys, xs = torch.randint(10, h - 10, (n,)), torch.randint(10, w - 10, (n,))
+    depth = torch.zeros(n, 3, h, w)
+    depth[torch.arange(n), :, ys, xs] = 1.0
+    labels = torch.rand(n, 12)
+    labels[:, OBJECT_PX] = torch.stack([xs * 2 / (w - 1) - 1, ys * 2 / (h - 1) - 1], dim=1)
+    out = shifted(StepBatch(depth, torch.zeros(n, 8), labels, torch.zeros(n, 4, 8)), 4,
+                  torch.Generator().manual_seed(0))
+    moved = 0
+    for i in range(n):
+        peak = (out.depth[i] == 1).nonzero()
+        assert len(peak) == 3 and (peak[:, 1:] == peak[0, 1:]).all()  # one pixel, the same in each frame
+        y, x = peak[0, 1:].tolist()
+        torch.testing.assert_close(out.labels[i, OBJECT_PX], torch.tensor([x * 2 / (w - 1) - 1,
+                                                                           y * 2 / (h - 1) - 1]))
+        moved += (x, y) != (int(xs[i]), int(ys[i]))
+    assert moved >= n // 2
+    torch.testing.assert_close(out.labels[:, OFFSET], labels[:, OFFSET])

@@ -46,11 +46,18 @@ class DistillConfig:
     """Gradients are scaled down to this total norm before each step, so that one bad batch cannot throw the
     weights far (an unclipped depth fit at lr 3e-4 spiked at step 3330: readout loss 0.004 -> 0.9, keypoints
     0.0005 -> 0.2, still 100x above its old level 400 steps later)."""
+    shift_px: int = 0
+    """Each training stack is shifted by up to this many pixels in x and y (drawn per sample, the edge
+    repeated) and its keypoint labels with it; the offset label, object minus hand, holds under the shift.
+    Against a readout that places things by where they sit in the image: the 400-demo fit read its training
+    episodes' offsets to 0.15 cm and held-out ones to 1.0 cm (``docs/history.md``, 2026-11-27)."""
     ema_max: float = 0.999
     ckpt_every: int = 500
     seed: int = 0
 
     def __post_init__(self) -> None:
+        if self.shift_px < 0:
+            raise ValueError(f"shift_px must be >= 0, got {self.shift_px}")
         for name in ("steps", "batch", "ckpt_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -74,6 +81,7 @@ def losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Gener
     if net.perception is None:
         obs = net.encode(batch.labels, batch.state)
     else:
+        batch = shifted(batch, cfg.shift_px, gen)
         features, facts, keypoints = net.perceive(batch.depth, batch.state)
         obs = net.fuse(features, facts.detach(), batch.state)
         truth = net.label_norm.normalise(batch.labels[:, :READOUT])
@@ -86,6 +94,26 @@ def losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Gener
     total = (terms["denoise"] + cfg.facts_loss * terms.get("facts", 0.0)
              + cfg.keypoint_loss * terms.get("keypoints", 0.0))
     return total, {name: float(value.detach()) for name, value in terms.items()}
+
+
+def shifted(batch: StepBatch, max_px: int, gen: torch.Generator) -> StepBatch:
+    """``batch`` with each depth stack moved by a random whole-pixel shift in [-max_px, max_px] (x and y, the
+    edge repeated) and its object and hand pixel labels moved alike."""
+    if max_px == 0:
+        return batch
+    b, _, h, w = batch.depth.shape
+    pixels = torch.randint(-max_px, max_px + 1, (b, 2), generator=gen, device=gen.device)
+    step = pixels.float() * torch.tensor([2 / (w - 1), 2 / (h - 1)], device=pixels.device)  # label units
+    theta = torch.zeros(b, 2, 3, device=pixels.device)
+    theta[:, 0, 0] = theta[:, 1, 1] = 1.0
+    theta[:, :, 2] = -step  # output pixel p reads input p - shift: the content moves by +shift
+    grid = nn.functional.affine_grid(theta, list(batch.depth.shape), align_corners=True)
+    depth = nn.functional.grid_sample(batch.depth, grid, mode="nearest", padding_mode="border",
+                                      align_corners=True)
+    labels = batch.labels.clone()
+    for columns in (OBJECT_PX, HAND_PX):
+        labels[:, columns] += step
+    return StepBatch(depth, batch.state, labels, batch.chunk)
 
 
 def start(out: Path, model_cfg: StudentConfig, info: TrainingInfo, steps: LabelledSteps,

@@ -79,6 +79,13 @@ class RecipeConfig:
     prediction: str = "v_prediction"
     resolution: str = "128x96"
     """The policy's depth, WIDTHxHEIGHT of the same crop."""
+    shift_px: int = 0
+    """Training stacks shifted by up to this many pixels, their pixel labels alike
+    (``DistillConfig.shift_px``)."""
+    fine_stride: int = 8
+    """The fine keypoints' stride, 8 or 4 (``StudentConfig.fine_stride``)."""
+    geometric: bool = False
+    """The readout also reads the keypoints' difference and depths (``StudentConfig.geometric``)."""
     ddim_steps: int = 4
     workers: int = 2
     """Rollout processes (collection and evaluation)."""
@@ -91,14 +98,16 @@ class RecipeConfig:
     def student(self) -> StudentConfig:
         return StudentConfig(perception=self.perception, width=self.width, head_dims=self.head_dims,
                              state_features=self.state_features, exec_horizon=self.exec_horizon,
-                             prediction=self.prediction)
+                             prediction=self.prediction, fine_stride=self.fine_stride,
+                             geometric=self.geometric)
 
     def spec(self) -> DepthSpec:
         width, _, height = self.resolution.partition("x")
         return DepthSpec(out_width=int(width), out_height=int(height))
 
     def distill(self, steps: int) -> DistillConfig:
-        return DistillConfig(steps=steps, batch=self.batch, lr=self.lr, seed=self.seed)
+        return DistillConfig(steps=steps, batch=self.batch, lr=self.lr, shift_px=self.shift_px,
+                             seed=self.seed)
 
 
 def default_home() -> Path:
@@ -229,7 +238,8 @@ class Recipe:
         self.out.mkdir(parents=True, exist_ok=True)
         mine = json.loads(json.dumps(asdict(self.cfg)))
         if path.is_file():
-            kept = json.loads(path.read_text())
+            defaults = json.loads(json.dumps(asdict(RecipeConfig())))  # for fields added since the file
+            kept = {**defaults, **json.loads(path.read_text())}
             changed = {k: (kept.get(k), v) for k, v in mine.items()
                        if k not in RESUMABLE and kept.get(k) != v}
             if changed:
