@@ -1,10 +1,10 @@
 """Every labelled step of a recipe's stores (the expert's demos and the DAgger rounds) in memory, as tensors
 on the training device, so a batch is a few index gathers rather than a Python loop per sample.
 
-Depth is held as the sensor's uint16 (half the memory of float32 frames: 2000 demos take ~4 GB) and normalised
-per batch through a table of ``runtime.preprocess.normalise`` over every uint16 value, the one implementation the
-runtime runs; stacks follow the ``FrameStack`` rule (the episode's first frame fills the history): a sample's
-stack is what the runtime feeds the policy at that step (tests/student/test_recipe.py).
+Depth is held as the sensor's uint16 (half the memory of float32 frames: 2000 demos take ~4 GB) and
+normalised per batch through a table of ``runtime.preprocess.normalise`` over every uint16 value, the one
+implementation the runtime runs; stacks follow the ``FrameStack`` rule (the episode's first frame fills the
+history): a sample's stack is what the runtime feeds the policy at that step (tests/student/test_recipe.py).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import torch
 
 from runtime.preprocess import DepthSpec, normalise
 from trainer.dataset import DemoStore, sizes
+
 
 class StepsError(ValueError):
     """Stores the recipe cannot train on (no labels, another resolution)."""
