@@ -252,3 +252,49 @@ def test_a_shifted_stack_carries_its_pixel_labels_along():
         moved += (x, y) != (int(xs[i]), int(ys[i]))
     assert moved >= n // 2
     torch.testing.assert_close(out.labels[:, OFFSET], labels[:, OFFSET])
+
+
+def test_a_composed_student_acts_on_the_readout_as_the_privileged_head_would(tmp_path):
+    """The depth student's readout, turned into the head's units, feeds the privileged head: the composed
+    network computes exactly that, though the two were normalised differently; and it exports with parity."""
+    from export.__main__ import main as export_main
+    from export.check import run_check
+    from trainer.student import checkpoint
+    from trainer.student.cli import main as student_main
+    from trainer.student.compose import compose
+
+    paths = {}
+    for name, kind in (("eye", ["depth", "--geometric"]), ("head", ["privileged"])):
+        paths[name] = tmp_path / f"{name}.pt"
+        assert student_main(["init", "--out", str(paths[name]), "--prediction", "v_prediction", *TINY,
+                             "--perception", *kind]) == 0
+    ckpts = {name: checkpoint.load(path) for name, path in paths.items()}
+    gen = torch.Generator().manual_seed(0)
+    for ckpt in ckpts.values():  # unlike normalisers, as two real fits have
+        for key in ("hand_norm.centre", "label_norm.centre"):
+            ckpt.ema[key] = torch.randn(ckpt.ema[key].shape, generator=gen)
+        for key in ("hand_norm.half_range", "label_norm.half_range"):
+            ckpt.ema[key] = torch.rand(ckpt.ema[key].shape, generator=gen) + 0.5
+    eye, head = (ckpts[name].policy() for name in ("eye", "head"))
+    composed = compose(ckpts["eye"], ckpts["head"])
+    depth, state = torch.rand(3, 3, 96, 128, generator=gen), torch.randn(3, 8, generator=gen) * 0.3
+    with torch.no_grad():
+        _, facts, _ = eye.perceive(depth, state)
+        in_head_units = head.label_norm.normalise(eye.label_norm.unnormalise(facts))
+        expected = head.fuse(facts[:, :0], in_head_units, state)
+        got = composed.policy().encode(depth, state)
+    torch.testing.assert_close(got, expected, atol=1e-5, rtol=1e-5)
+    assert not composed.config.head_features
+    checkpoint.save(tmp_path / "c.pt", composed)
+    assert export_main([str(tmp_path / "c.pt"), "--ddim-steps", "4", "--out", str(tmp_path / "c.onnx")]) == 0
+    assert run_check(tmp_path / "c.onnx", repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
+
+
+def test_compose_refuses_a_head_that_reads_depth(tmp_path, capsys):
+    from trainer.student.cli import main as student_main
+
+    eye = tmp_path / "eye.pt"
+    assert student_main(["init", "--out", str(eye), "--perception", "depth", *TINY]) == 0
+    assert student_main(["compose", "--perception", str(eye), "--head", str(eye), "--out",
+                         str(tmp_path / "c.pt")]) == 2
+    assert "--head must be a privileged student" in capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""``python -m trainer student fit|recipe|readout|init|probe ...``; fit also runs under ``torchrun
+"""``python -m trainer student fit|recipe|readout|compose|init|probe ...``; fit also runs under ``torchrun
 --nproc_per_node N``."""
 
 from __future__ import annotations
@@ -34,6 +34,8 @@ MENU = Menu("python -m trainer student", {
                "trainer.student.recipe:main"),
     "readout": ("a depth student's perception errors on labelled frames (M1)",
                 "trainer.student.readout:main"),
+    "compose": ("one depth student from a depth student's perception and a privileged head (M0)",
+                "trainer.student.compose:main"),
     "init": ("write an untrained checkpoint (test fixtures)", "trainer.student.cli:init"),
     "probe": ("offline action error of an exported student against demos", "trainer.student.probe:main"),
 })

@@ -91,6 +91,10 @@ class StudentConfig:
     """``perception="depth"``: the fine keypoints' map, 8 (16 x 12 cells at 128 x 96) or 4 (32 x 24: the
     stride-8 map upsampled onto the first stage's, as a feature pyramid does): a keypoint within a cell is
     placed by the softmax's blend of neighbours, and a pixel of keypoint error costs ~1 cm of offset."""
+    head_features: bool = True
+    """``perception="depth"``: the action head reads the depth features beside the facts. False: it reads
+    only what the privileged head (M0) reads (the facts, the joint state, the hand's pose), so that a head
+    trained on the true facts can act on the readout (``trainer student compose``)."""
     geometric: bool = False
     """``perception="depth"``: the readout also reads the two supervised keypoints' difference and the depths
     under them (each keypoint's attention-weighted depth of the latest frame) and their difference: the

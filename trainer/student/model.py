@@ -231,7 +231,7 @@ class PerceptionStudent(nn.Module):
         self.perception = (Perception(config.depth_channels, config.width, config.keypoints,
                                       config.fine_keypoints, config.fine_stride, config.geometric)
                            if depth else None)
-        features = self.perception.out_features if depth else 0
+        features = self.perception.out_features if depth and config.head_features else 0
         inputs = config.state_dim + HAND_FEATURES + READOUT + 2
         self.state_mlp = nn.Sequential(nn.Linear(inputs, config.state_features), nn.ReLU(),
                                        nn.Linear(config.state_features, config.state_features))
@@ -252,6 +252,8 @@ class PerceptionStudent(nn.Module):
         return self.fuse(features, facts, state)
 
     def fuse(self, features: torch.Tensor, facts: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        if not self.config.head_features:
+            features = features[:, :0]
         hand = hand_pose(state)
         turn = into_fingers(self.label_norm.unnormalise(facts)[:, GRASP_YAW], hand)
         x = torch.cat([self.state_norm.normalise(state), self.hand_norm.normalise(hand), facts, turn], dim=-1)
