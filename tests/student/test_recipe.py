@@ -195,18 +195,24 @@ def test_the_student_runs_on_any_device(mode):
 
 
 @pytest.mark.slow
-def test_a_depth_recipe_runs_its_stages_and_measures_its_readout(tmp_path):
-    """The product path end to end at toy size: a depth student is exported each round, drives the next
-    round through onnxruntime, and its readout is measured on frames it never trained on."""
+@pytest.mark.parametrize("with_head", [False, True])
+def test_a_depth_recipe_runs_its_stages_and_measures_its_readout(tmp_path, with_head):
+    """The product path end to end at toy size: a depth student is exported each round (with ``--head``,
+    composed with a privileged head first), drives the next round through onnxruntime, and its readout is
+    measured on frames it never trained on."""
+    from trainer.student.cli import main as student_main
     from trainer.student.recipe import main as recipe_main
 
-    out = tmp_path / "d"
+    out, head = tmp_path / "d", tmp_path / "m0.pt"
+    assert student_main(["init", "--out", str(head), "--perception", "privileged", *TINY]) == 0
     assert recipe_main(["--out", str(out), "--perception", "depth", "--demos", "2", "--rounds", "1",
                         "--round-episodes", "1", "--fit-steps", "2", "--round-steps", "1", "--workers", "1",
                         "--curve-episodes", "1", "--eval-episodes", "1", "--width", "8", "--head-dims", "16",
-                        "32", "--state-features", "16", "--batch", "4"]) == 0
+                        "32", "--state-features", "16", "--batch", "4",
+                        *(["--head", str(head)] if with_head else [])]) == 0
     for r in (0, 1):
         assert (out / "fit" / f"round{r}" / "student.onnx").is_file()
+        assert (out / "fit" / f"round{r}" / "composed.pt").is_file() == with_head
         readout = json.loads((out / "fit" / f"round{r}" / "readout.json").read_text())
         assert readout["frames"] > 0 and readout["all"]["offset_cm_median"] > 0
     assert DemoStore.open(out / "data" / "round1.zarr").attrs["learner"].startswith("student:")

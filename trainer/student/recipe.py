@@ -2,7 +2,8 @@
 
     demos     the reactive expert's episodes, every frame labelled (round 0: ``trainer.student.dagger``)
     fit       the student on every labelled step so far (round 0 from scratch, then from the last round's)
-    export    the student -> student.onnx (a depth student; the next round's learner, the shipped file)
+    export    the student -> student.onnx (a depth student, composed with ``--head`` when given; the next
+              round's learner, the shipped file)
     dagger    the learner's own episodes labelled by the expert (rounds 1..R, beta halved each round)
     readout   a depth student's readout errors on frames it was not trained on: the next round's, and the
               last student's own episodes (seeds 30000..): fit/roundR/readout.json (milestone M1)
@@ -38,6 +39,7 @@ from trainer.eval.success import evaluate
 from trainer.sim.env import EnvConfig
 from trainer.student import checkpoint
 from trainer.student.checkpoint import TrainingInfo
+from trainer.student.compose import compose
 from trainer.student.config import StudentConfig
 from trainer.student.dagger import RoundSpec, collect_round
 from trainer.student.distill import DistillConfig, device, distill
@@ -79,6 +81,11 @@ class RecipeConfig:
     prediction: str = "v_prediction"
     resolution: str = "128x96"
     """The policy's depth, WIDTHxHEIGHT of the same crop."""
+    head: str = ""
+    """A privileged student's checkpoint (M0: ``--perception privileged``, the head trained on the true
+    facts). Each depth student is then composed with its head (``trainer student compose``) before export,
+    so the learner, the curve and the shipped file act with M0's head on the readout; the fits teach
+    perception."""
     shift_px: int = 0
     """Training stacks shifted by up to this many pixels, their pixel labels alike
     (``DistillConfig.shift_px``)."""
@@ -165,6 +172,10 @@ class Recipe:
             self._log(f"round {r} fit", distill(data, self.run_dir(r), c.student(), c.distill(steps), info,
                                                 init))
         if c.perception == "depth" and not self.onnx(r).is_file():
+            if c.head:  # the exported student acts with M0's head on this fit's readout
+                composed = self.run_dir(r) / "composed.pt"
+                checkpoint.save(composed, compose(checkpoint.load(ckpt_path), checkpoint.load(Path(c.head))))
+                ckpt_path = composed
             export(ckpt_path, self.onnx(r), c.ddim_steps)
 
     def held_out(self) -> Path:
@@ -317,6 +328,9 @@ def main(argv: list[str] | None = None) -> int:
     cfg = from_args(RecipeConfig, args)
     try:
         cfg.student()
+        if cfg.head and cfg.perception != "depth":
+            raise ValueError("--head composes a depth student's perception with a privileged head: it needs "
+                             "--perception depth")
         out = args.out or default_home() / "recipe" / args.name
         summary = Recipe(out, cfg).run()
     except (ValueError, DatasetError, OSError, subprocess.CalledProcessError) as exc:
