@@ -304,3 +304,13 @@ def test_compose_refuses_a_head_that_reads_depth(tmp_path, capsys):
     assert student_main(["compose", "--perception", str(eye), "--head", str(eye), "--out",
                          str(tmp_path / "c.pt")]) == 2
     assert "--head must be a privileged student" in capsys.readouterr().err
+
+
+def test_readout_errors_name_an_empty_group_instead_of_failing():
+    """A learner that never came near the object leaves the 'near' group empty."""
+    from trainer.student.readout import errors
+
+    labels = np.zeros((4, 12), np.float32)
+    labels[:, 0] = 0.2  # 20 cm from the hand throughout
+    result = errors(labels + 0.01, labels, np.array([2, 4]))
+    assert result["near"] == {"frames": 0} and result["all"]["offset_cm_median"] == pytest.approx(1.732, 1e-3)

@@ -52,6 +52,9 @@ def errors(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray) -
     episode = np.repeat(np.arange(len(episode_ends)), np.diff(episode_ends, prepend=0))
     result = {"frames": len(error), "episodes": len(episode_ends)}
     for name, mask in (("all", np.ones(len(error), bool)), ("near", near)):
+        if not mask.any():  # e.g. a learner that never came near the object
+            result[name] = {"frames": 0}
+            continue
         per_frame = np.linalg.norm(error[mask], axis=1)
         biases = [np.linalg.norm(error[mask & (episode == e)].mean(0)) for e in np.unique(episode[mask])]
         result[name] = {"frames": int(mask.sum()), "offset_cm_median": _round(np.median(per_frame)),
