@@ -17,8 +17,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import torch
@@ -32,6 +30,7 @@ from trainer.student.config import StudentConfig
 from trainer.student.distill import DistillConfig, distill
 from trainer.student.model import PerceptionStudent
 from trainer.student.readout import errors, readouts
+from trainer.student.recipe import export
 from trainer.student.steps import LabelledSteps
 from trainer.student.train import CKPT_NAME
 
@@ -71,8 +70,7 @@ def run_arm(name: str, spec: str, source: Checkpoint, data: LabelledSteps, tests
         result[test] = errors(estimate, labels, DemoStore.open(store).episode_ends)
     onnx = out / "student.onnx"
     if not onnx.is_file():
-        subprocess.run([sys.executable, "-m", "export", str(out / CKPT_NAME), "--ddim-steps", "4", "--out",
-                        str(onnx)], check=True, stdout=subprocess.DEVNULL)
+        export(out / CKPT_NAME, onnx, ddim_steps=4)
     if args.episodes:
         run = evaluate(f"student:{onnx}", GROUPS["seen"], args.episodes, workers=1)
         result["seen"] = {k: run[k] for k in ("success_rate", "ci95", "per_object", "first_close")}

@@ -130,7 +130,6 @@ class Perception(nn.Module):
             inputs.append(geometry(fine, attention, depth[:, -1:], fine_map.shape[-2:]))
         return features, self.readout(torch.cat(inputs, dim=-1)), fine
 
-
     def maps(self, depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(the fine keypoints' map, the last stage's map) of a depth stack."""
         r = self.resnet
