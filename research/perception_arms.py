@@ -7,9 +7,12 @@ same steps. Then each arm's readout is measured (``trainer.student.readout``) on
 exported, it is evaluated closed loop as ``trainer evaluate`` does. Prints and writes one JSON per arm.
 
     python research/perception_arms.py --init CKPT --stores S0 S1 ... --test NAME=STORE ... --out DIR \\
-        [--arms base=8 s4g=4g] [--steps 2000] [--episodes 60]
+        [--arms base=8 s4g=4g near=8:1] [--steps 2000] [--lr 1e-4] [--shift-px 0] [--episodes 60] [--head M0]
 
-An arm is NAME=STRIDE[g]: the fine keypoints' stride (8 or 4), and g for the geometric readout inputs.
+An arm is NAME=STRIDE[g][:NEAR]: the fine keypoints' stride (8 or 4), g for the geometric readout inputs, and
+the weight of the near-weighted offset loss (``DistillConfig.near_loss``, default 0). With ``--head`` each arm
+is composed with that privileged head before export (as ``trainer student recipe --head``), so the closed loop
+measures its perception under the same head.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from trainer.dataset import DemoStore
 from trainer.eval.success import evaluate
 from trainer.student import checkpoint
 from trainer.student.checkpoint import Checkpoint
+from trainer.student.compose import compose
 from trainer.student.config import StudentConfig
 from trainer.student.distill import DistillConfig, distill
 from trainer.student.model import PerceptionStudent
@@ -36,7 +40,14 @@ from trainer.student.train import CKPT_NAME
 
 
 def arm_config(base: StudentConfig, spec: str) -> StudentConfig:
-    return dataclasses.replace(base, fine_stride=int(spec.rstrip("g")), geometric=spec.endswith("g"))
+    network = spec.partition(":")[0]
+    return dataclasses.replace(base, fine_stride=int(network.rstrip("g")), geometric=network.endswith("g"))
+
+
+def arm_distill(spec: str, args: argparse.Namespace) -> DistillConfig:
+    near = spec.partition(":")[2]
+    return DistillConfig(steps=args.steps, batch=args.batch, lr=args.lr, warmup=min(200, args.steps // 10),
+                         shift_px=args.shift_px, near_loss=float(near or 0))
 
 
 def transplant(source: Checkpoint, config: StudentConfig) -> Checkpoint:
@@ -62,15 +73,17 @@ def run_arm(name: str, spec: str, source: Checkpoint, data: LabelledSteps, tests
     init = out / "init.pt"
     if not init.is_file():
         checkpoint.save(init, transplant(source, arm_config(source.config, spec)))
-    cfg = DistillConfig(steps=args.steps, batch=args.batch, lr=args.lr, warmup=min(200, args.steps // 10))
-    fit = distill(data, out, arm_config(source.config, spec), cfg, source.info, init)
+    fit = distill(data, out, arm_config(source.config, spec), arm_distill(spec, args), source.info, init)
     result = {"arm": name, "spec": spec, "fit": fit}
     for test, store in tests.items():
         estimate, labels = readouts(out / CKPT_NAME, store)
         result[test] = errors(estimate, labels, DemoStore.open(store).episode_ends)
-    onnx = out / "student.onnx"
+    onnx, acting = out / "student.onnx", out / CKPT_NAME
+    if args.head:
+        acting = out / "composed.pt"
+        checkpoint.save(acting, compose(checkpoint.load(out / CKPT_NAME), checkpoint.load(args.head)))
     if not onnx.is_file():
-        export(out / CKPT_NAME, onnx, ddim_steps=4)
+        export(acting, onnx, ddim_steps=4)
     if args.episodes:
         run = evaluate(f"student:{onnx}", GROUPS["seen"], args.episodes, workers=1)
         result["seen"] = {k: run[k] for k in ("success_rate", "ci95", "per_object", "first_close")}
@@ -87,6 +100,8 @@ def main() -> None:
     p.add_argument("--steps", type=int, default=2000)
     p.add_argument("--batch", type=int, default=128)
     p.add_argument("--lr", type=float, default=1e-4)
+    p.add_argument("--shift-px", type=int, default=0)
+    p.add_argument("--head", type=Path, help="a privileged head (M0) each arm is composed with before export")
     p.add_argument("--episodes", type=int, default=60)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--out", type=Path, required=True)

@@ -314,3 +314,31 @@ def test_readout_errors_name_an_empty_group_instead_of_failing():
     labels[:, 0] = 0.2  # 20 cm from the hand throughout
     result = errors(labels + 0.01, labels, np.array([2, 4]))
     assert result["near"] == {"frames": 0} and result["all"]["offset_cm_median"] == pytest.approx(1.732, 1e-3)
+
+
+def test_the_near_loss_weighs_an_error_by_how_near_the_object_is():
+    """A 1 cm horizontal error costs 1 where the hand is on the object and 1/441 twenty centimetres away, so
+    the fit cares most where the grasp is decided; the vertical error and the other facts do not enter."""
+    from trainer.student.distill import near_error
+
+    labels = torch.zeros(2, 12)
+    labels[1, 0] = 0.20  # the second frame: the object 20 cm from the hand
+    facts = labels[:, :8].clone()
+    facts[:, 1] += 0.01
+    facts[:, 2:] += 0.5  # height, direction and size: not this term's business
+    per_frame = [float(near_error(facts[i:i + 1], labels[i:i + 1])) for i in range(2)]
+    assert per_frame == pytest.approx([1.0, 1 / 441], rel=1e-4)
+
+
+def test_the_readout_reports_how_much_of_a_near_miss_it_sees():
+    """A readout that reports half of every offset reads a share of 0.5 of the near misses; one that reports
+    them whole reads 1; frames outside the near-miss band are not counted."""
+    from trainer.student.readout import off_target
+
+    rng = np.random.default_rng(0)
+    labels = np.zeros((200, 8), np.float32)
+    labels[:, :2] = rng.uniform(-0.03, 0.03, (200, 2))
+    length = np.linalg.norm(labels[:, :2], axis=1)
+    in_band = int(((length >= 0.007) & (length < 0.02)).sum())
+    assert off_target(labels * 0.5, labels) == {"frames": in_band, "read_share_median": 0.5}
+    assert off_target(labels, labels)["read_share_median"] == 1.0

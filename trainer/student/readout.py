@@ -28,6 +28,8 @@ from trainer.student.steps import LabelledSteps
 
 NEAR_M = 0.05
 """Frames with the hand this near the object (horizontally) are the ones that decide the grasp."""
+OFF_TARGET_M = (0.007, 0.02)
+"""Frames this far off the object (horizontally) are near misses: the fingers close beside it."""
 
 
 def readouts(ckpt_path: Path, store: Path, device: torch.device | str = "cpu",
@@ -61,6 +63,7 @@ def errors(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray) -
                         "offset_cm_p90": _round(np.percentile(per_frame, 90)),
                         "bias_cm_median": _round(np.median(biases)),
                         "bias_cm_p90": _round(np.percentile(biases, 90))}
+    result["off_target"] = off_target(estimate, labels)
     directed = np.linalg.norm(labels[:, GRASP_YAW], axis=1) > 0.5
     if directed.any():
         turn = np.arctan2(estimate[directed, 4], estimate[directed, 3]) - np.arctan2(labels[directed, 4],
@@ -69,6 +72,18 @@ def errors(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray) -
         result["grasp_yaw_deg_median"] = _round(np.median(degrees))
         result["grasp_yaw_deg_p90"] = _round(np.percentile(degrees, 90))
     return result
+
+
+def off_target(estimate: np.ndarray, labels: np.ndarray) -> dict:
+    """Of frames with the hand ``OFF_TARGET_M`` off the object: the median share of that horizontal offset the
+    readout reports along it (1 = all of it, 0 = "on target"), the one error a closed loop cannot recover."""
+    true, read = labels[:, OFFSET][:, :2], estimate[:, OFFSET][:, :2]
+    length = np.linalg.norm(true, axis=1)
+    mask = (length >= OFF_TARGET_M[0]) & (length < OFF_TARGET_M[1])
+    if not mask.any():
+        return {"frames": 0}
+    share = (read[mask] * true[mask]).sum(1) / length[mask] ** 2
+    return {"frames": int(mask.sum()), "read_share_median": _round(np.median(share))}
 
 
 def measure(ckpt_path: Path, store: Path, device: torch.device | str = "cpu") -> dict:

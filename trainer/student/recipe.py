@@ -89,6 +89,9 @@ class RecipeConfig:
     shift_px: int = 0
     """Training stacks shifted by up to this many pixels, their pixel labels alike
     (``DistillConfig.shift_px``)."""
+    near_loss: float = 0.0
+    """Weight of the readout's offset error relative to the distance to the object
+    (``DistillConfig.near_loss``)."""
     fine_stride: int = 8
     """The fine keypoints' stride, 8 or 4 (``StudentConfig.fine_stride``)."""
     geometric: bool = False
@@ -114,7 +117,7 @@ class RecipeConfig:
 
     def distill(self, steps: int) -> DistillConfig:
         return DistillConfig(steps=steps, batch=self.batch, lr=self.lr, shift_px=self.shift_px,
-                             seed=self.seed)
+                             near_loss=self.near_loss, seed=self.seed)
 
 
 def default_home() -> Path:
