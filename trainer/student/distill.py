@@ -110,7 +110,7 @@ NEAR_SCALE_M = 0.01
 
 
 def near_error(facts: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
-    """Mean squared horizontal offset error (facts in metres) over (true horizontal offset + NEAR_SCALE_M)^2."""
+    """Squared horizontal offset error (facts in metres) over (true offset + NEAR_SCALE_M)^2, batch mean."""
     true = labels[:, OFFSET][:, :2]
     error = ((facts[:, OFFSET][:, :2] - true) ** 2).sum(dim=-1)
     return (error / (true.norm(dim=-1) + NEAR_SCALE_M) ** 2).mean()
