@@ -19,6 +19,8 @@ def test_evaluate_writes_the_json_contract(tmp_path, capsys) -> None:
     assert result["episodes"] == 2 and set(result["per_object"]) == {"cube", "peach"}
     assert 0.0 <= result["success_rate"] <= 1.0
     assert result["success_rate"] == pytest.approx(np.mean(list(result["per_object"].values())))
+    assert set(result["failed_seeds"]) <= {10_000, 10_001}
+    assert len(result["failed_seeds"]) == round(2 * (1 - result["success_rate"]))
     lo, hi = result["ci95"]
     assert 0.0 <= lo <= result["success_rate"] <= hi <= 1.0 and hi - lo > 0.3  # 2 episodes say little
     # The scripted expert closes centred over the object, the grasp site 1-5 cm above its centre.

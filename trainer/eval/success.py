@@ -6,7 +6,8 @@ command gives the same result on any number of ``--workers``. Prints a per-objec
 {"success_rate", "ci95", "episodes", "per_object": {kind: rate}, ...} as JSON; ``ci95`` is the Wilson score
 interval of the success rate. ``first_close`` says where the hand was when the policy first closed the gripper
 (object minus grasp site, cm, world frame): a policy that fails by closing beside or above its objects shows
-it there.
+it there. ``failed_seeds`` lists the episodes that failed, so two policies run on the same seeds can be compared
+episode by episode.
 """
 
 from __future__ import annotations
@@ -56,11 +57,13 @@ def evaluate(policy: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 
                        render_depth=NEEDS_DEPTH[kind] and reads_clean_depth(sensor))
     jobs = [Job(seed + i, kinds[i % len(kinds)]) for i in range(episodes)]
     per: dict[str, list[bool]] = {k: [] for k in kinds}
-    steps, closes, start = [], [], time.perf_counter()
+    steps, closes, failed, start = [], [], [], time.perf_counter()
     runs = rollouts(config, policy, jobs, workers=workers, sensor_spec=sensor, restore=restore)
     for r in tqdm(runs, total=episodes, desc=f"evaluate {policy}", unit="ep"):
         per[r.kind].append(r.success)
         steps.append(r.steps)
+        if not r.success:
+            failed.append(r.seed)
         if r.closed_at is not None:
             closes.append(r.closed_at)
     total = sum(map(sum, per.values()))
@@ -68,7 +71,7 @@ def evaluate(policy: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 
             "episodes": episodes, "per_object": {k: sum(v) / len(v) for k, v in per.items() if v},
             "policy": policy, "sensor": sensor, "restore": restore, "objects": list(kinds), "seed": seed,
             "mean_steps": sum(steps) / max(1, len(steps)), "first_close": first_close(closes),
-            "seconds": round(time.perf_counter() - start, 1)}
+            "failed_seeds": sorted(failed), "seconds": round(time.perf_counter() - start, 1)}
 
 
 def first_close(closes: list[tuple[int, np.ndarray]]) -> dict:
