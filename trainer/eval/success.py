@@ -6,8 +6,8 @@ command gives the same result on any number of ``--workers``. Prints a per-objec
 {"success_rate", "ci95", "episodes", "per_object": {kind: rate}, ...} as JSON; ``ci95`` is the Wilson score
 interval of the success rate. ``first_close`` says where the hand was when the policy first closed the gripper
 (object minus grasp site, cm, world frame): a policy that fails by closing beside or above its objects shows
-it there. ``failed_seeds`` lists the episodes that failed, so two policies run on the same seeds can be compared
-episode by episode.
+it there. ``failed_seeds`` lists the episodes that failed, so two policies run on the same seeds can be
+compared episode by episode.
 """
 
 from __future__ import annotations
