@@ -45,8 +45,8 @@ class DistillConfig:
     ``NEAR_SCALE_M`` (squared): an error of 1 cm at the object costs 1, at 20 cm away 1/441. In standardised
     units a centimetre weighs the same everywhere, and the readout learned to say "nearly there" when 1-2 cm
     off (it reports 29 % of such an offset on its own held-out frames, ``readout``'s ``off_target``:
-    ``docs/history.md``, 2026-11-27), which closes the fingers beside the object; the world forgives errors far
-    from it. Weight 1: 74.2 % of 360 seen-kind episodes against 68.6 % without (no interval cleared)."""
+    ``docs/history.md``, 2026-11-27), which closes the fingers beside the object; the world forgives errors
+    far from it. Weight 1: 74.2 % of 360 seen-kind episodes against 68.6 % without (no interval cleared)."""
     keypoint_loss: float = 10.0
     """Weight of the supervised keypoints' squared error in [-1, 1] image units (a pixel is ~0.02)."""
     max_grad_norm: float = 1.0
