@@ -29,7 +29,6 @@ from trainer.dataset import DemoStore
 from trainer.eval.success import evaluate
 from trainer.student import checkpoint
 from trainer.student.checkpoint import Checkpoint
-from trainer.student.compose import compose
 from trainer.student.config import StudentConfig
 from trainer.student.distill import DistillConfig, distill
 from trainer.student.model import PerceptionStudent
@@ -78,12 +77,9 @@ def run_arm(name: str, spec: str, source: Checkpoint, data: LabelledSteps, tests
     for test, store in tests.items():
         estimate, labels = readouts(out / CKPT_NAME, store)
         result[test] = errors(estimate, labels, DemoStore.open(store).episode_ends)
-    onnx, acting = out / "student.onnx", out / CKPT_NAME
-    if args.head:
-        acting = out / "composed.pt"
-        checkpoint.save(acting, compose(checkpoint.load(out / CKPT_NAME), checkpoint.load(args.head)))
+    onnx = out / "student.onnx"
     if not onnx.is_file():
-        export(acting, onnx, ddim_steps=4)
+        export(out / CKPT_NAME, onnx, ddim_steps=4, head=args.head)
     if args.episodes:
         run = evaluate(f"student:{onnx}", GROUPS["seen"], args.episodes, workers=1)
         result["seen"] = {k: run[k] for k in ("success_rate", "ci95", "per_object", "first_close")}

@@ -175,11 +175,7 @@ class Recipe:
             self._log(f"round {r} fit", distill(data, self.run_dir(r), c.student(), c.distill(steps), info,
                                                 init))
         if c.perception == "depth" and not self.onnx(r).is_file():
-            if c.head:  # the exported student acts with M0's head on this fit's readout
-                composed = self.run_dir(r) / "composed.pt"
-                checkpoint.save(composed, compose(checkpoint.load(ckpt_path), checkpoint.load(Path(c.head))))
-                ckpt_path = composed
-            export(ckpt_path, self.onnx(r), c.ddim_steps)
+            export(ckpt_path, self.onnx(r), c.ddim_steps, Path(c.head) if c.head else None)
 
     def held_out(self) -> Path:
         """The last student's own episodes (no expert steps), labelled but never trained on."""
@@ -279,8 +275,14 @@ RESUMABLE = {"workers", "threads", "curve_episodes", "eval_episodes", "rounds"}
 """Settings a resume may change: how the work is spread, how much is measured, how many more rounds."""
 
 
-def export(ckpt: Path, out: Path, ddim_steps: int) -> None:
-    """``python -m export``, in its own process (trainer does not import export: export imports trainer)."""
+def export(ckpt: Path, out: Path, ddim_steps: int, head: Path | None = None) -> None:
+    """``python -m export``, in its own process (trainer does not import export: export imports trainer).
+    With ``head`` the depth student is first composed with that privileged head (``composed.pt`` beside
+    ``ckpt``), so the exported student acts with M0's head on this fit's readout."""
+    if head is not None:
+        composed = ckpt.parent / "composed.pt"
+        checkpoint.save(composed, compose(checkpoint.load(ckpt), checkpoint.load(head)))
+        ckpt = composed
     subprocess.run([sys.executable, "-m", "export", str(ckpt), "--ddim-steps", str(ddim_steps), "--out",
                     str(out)], check=True, stdout=subprocess.DEVNULL)
 
