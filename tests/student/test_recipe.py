@@ -342,3 +342,23 @@ def test_the_readout_reports_how_much_of_a_near_miss_it_sees():
     in_band = int(((length >= 0.007) & (length < 0.02)).sum())
     assert off_target(labels * 0.5, labels) == {"frames": in_band, "read_share_median": 0.5}
     assert off_target(labels, labels)["read_share_median"] == 1.0
+
+
+def test_hover_episodes_are_driven_by_the_biased_head_and_join_every_fit(tmp_path, capsys):
+    """``--hover-episodes``: the privileged head, its facts offset by ``--hover-cm``, drives a store labelled
+    by the expert, which every fit reads beside the rounds' stores; without ``--head`` it is refused."""
+    from trainer.student.cli import main as student_main
+    from trainer.student.recipe import Recipe, RecipeConfig
+    from trainer.student.recipe import main as recipe_main
+
+    head = tmp_path / "m0.pt"
+    assert student_main(["init", "--out", str(head), "--perception", "privileged", *TINY]) == 0
+    recipe = Recipe(tmp_path / "r", RecipeConfig(head=str(head), hover_episodes=1, hover_cm=2.0, workers=1))
+    recipe.env = EnvConfig(objects=("cube",), max_steps=4, depth=recipe.env.depth)
+    recipe.hover()
+    store = DemoStore.open(recipe.hover_store())
+    assert store.attrs["learner"] == f"oracle:{head}@2" and store.attrs["attempted"] == 1
+    assert store.n_steps > 0 and "chunk" in store.root["data"]
+    assert recipe.stores(1) == [recipe.store(0), recipe.store(1), recipe.hover_store()]
+    assert recipe_main(["--out", str(tmp_path / "x"), "--hover-episodes", "1"]) == 2
+    assert "--hover-episodes needs --head" in capsys.readouterr().err

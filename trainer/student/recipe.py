@@ -5,6 +5,8 @@
     export    the student -> student.onnx (a depth student, composed with ``--head`` when given; the next
               round's learner, the shipped file)
     dagger    the learner's own episodes labelled by the expert (rounds 1..R, beta halved each round)
+    hover     with ``--hover-episodes``: the head (``--head``) drives on facts offset by ``--hover-cm``, the
+              expert labels every state; in every fit from then on
     readout   a depth student's readout errors on frames it was not trained on: the next round's, and the
               last student's own episodes (seeds 30000..): fit/roundR/readout.json (milestone M1)
     curve     held-out success after each fit (seeds 20000..): learning_curve.csv and .png
@@ -51,6 +53,7 @@ ROUND_SEED = 1_000_000
 """Round r's episodes use seeds ROUND_SEED + r * 100_000..: apart from the curve's and the evaluation's."""
 CURVE_SEED = 20_000
 HELD_OUT_SEED = 30_000
+HOVER_SEED = 40_000
 EVAL_SEED = 10_000
 
 
@@ -86,6 +89,13 @@ class RecipeConfig:
     facts). Each depth student is then composed with its head (``trainer student compose``) before export,
     so the learner, the curve and the shipped file act with M0's head on the readout; the fits teach
     perception."""
+    hover_episodes: int = 0
+    """Episodes driven by ``head`` on the true facts offset by ``hover_cm`` in a random horizontal direction
+    (fixed per episode), every state labelled by the expert (``data/hover.zarr``, in each fit from the next
+    on). They hold what the other stores seldom do and the readout misses most: the hand near the object
+    but 1-2 cm beside it (expert and learner frames near the object are mostly on target, so the readout
+    learned to say "nearly there" there: ``docs/history.md``, 2026-11-27)."""
+    hover_cm: float = 1.5
     shift_px: int = 0
     """Training stacks shifted by up to this many pixels, their pixel labels alike
     (``DistillConfig.shift_px``)."""
@@ -140,6 +150,7 @@ class Recipe:
             torch.set_num_threads(self.cfg.threads)
         for r in range(self.cfg.rounds + 1):
             self.collect(r)
+            self.hover()
             if r:
                 self.readout(r - 1, self.store(r))
             self.fit(r)
@@ -160,12 +171,20 @@ class Recipe:
                                   seed=ROUND_SEED + r * 100_000, workers=c.workers)
             self._log(f"round {r} data", tally)
 
+    def hover(self) -> None:
+        c = self.cfg
+        if c.hover_episodes and self._episodes(self.hover_store()) < c.hover_episodes:
+            spec = RoundSpec(learner=f"oracle:{c.head}@{c.hover_cm:g}", horizon=c.student().action_horizon)
+            tally = collect_round(self.hover_store(), self.env, spec, episodes=c.hover_episodes,
+                                  seed=HOVER_SEED, workers=c.workers)
+            self._log("hover data", tally)
+
     def fit(self, r: int) -> None:
         c = self.cfg
         steps = c.fit_steps if r == 0 else c.round_steps
         ckpt_path = self.run_dir(r) / CKPT_NAME
         if not (ckpt_path.is_file() and checkpoint.load(ckpt_path).step >= steps):
-            data = LabelledSteps([self.store(i) for i in range(r + 1)], c.student().obs_horizon,
+            data = LabelledSteps(self.stores(r), c.student().obs_horizon,
                                  c.student().action_horizon, depth=c.perception == "depth", device=self.dev)
             info = TrainingInfo(depth_spec=data.spec, action_scale=self.env.action_scale,
                                 control_rate_hz=self.env.control_rate_hz, trained=True,
@@ -207,7 +226,7 @@ class Recipe:
                           workers=c.workers)
         (self.run_dir(r) / "held_out.json").write_text(json.dumps(result, indent=2))
         store = DemoStore.open(self.store(r))
-        rows.append({"round": r, "steps": sum(DemoStore.open(self.store(i)).n_steps for i in range(r + 1)),
+        rows.append({"round": r, "steps": sum(DemoStore.open(s).n_steps for s in self.stores(r)),
                      "round_success": round(store.attrs["succeeded"] / max(1, store.attrs["attempted"]), 4),
                      "held_out_success": result["success_rate"], "ci_low": result["ci95"][0],
                      "ci_high": result["ci95"][1], "episodes": c.curve_episodes})
@@ -229,6 +248,14 @@ class Recipe:
     # --- paths --------------------------------------------------------------------------------------
     def store(self, r: int) -> Path:
         return self.out / "data" / f"round{r}.zarr"
+
+    def hover_store(self) -> Path:
+        return self.out / "data" / "hover.zarr"
+
+    def stores(self, r: int) -> list[Path]:
+        """What round ``r``'s fit learns from."""
+        hover = [self.hover_store()] if self.cfg.hover_episodes else []
+        return [self.store(i) for i in range(r + 1)] + hover
 
     def run_dir(self, r: int) -> Path:
         return self.out / "fit" / f"round{r}"
@@ -336,6 +363,8 @@ def main(argv: list[str] | None = None) -> int:
         if cfg.head and cfg.perception != "depth":
             raise ValueError("--head composes a depth student's perception with a privileged head: it needs "
                              "--perception depth")
+        if cfg.hover_episodes and not cfg.head:
+            raise ValueError("--hover-episodes needs --head: the privileged head drives them")
         out = args.out or default_home() / "recipe" / args.name
         summary = Recipe(out, cfg).run()
     except (ValueError, DatasetError, OSError, subprocess.CalledProcessError) as exc:
