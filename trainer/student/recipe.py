@@ -96,6 +96,8 @@ class RecipeConfig:
     but 1-2 cm beside it (expert and learner frames near the object are mostly on target, so the readout
     learned to say "nearly there" there: ``docs/history.md``, 2026-11-27)."""
     hover_cm: float = 1.5
+    """How far beside the object (cm) the head aims in the hover episodes: inside the 0.7-2 cm band where the
+    readout reports least of the offset (``readout.OFF_TARGET_M``)."""
     shift_px: int = 0
     """Training stacks shifted by up to this many pixels, their pixel labels alike
     (``DistillConfig.shift_px``)."""
