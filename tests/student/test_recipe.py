@@ -116,7 +116,7 @@ def test_training_stacks_are_the_runtimes(tmp_path):
             np.testing.assert_array_equal(batch.chunk[0].numpy(), ep["chunk"][t])
 
 
-@pytest.mark.parametrize("variant", [[], ["--fine-stride", "4", "--geometric"]])
+@pytest.mark.parametrize("variant", [[], ["--fine-stride", "4", "--geometric"], ["--grasp-point"]])
 def test_perception_student_exports_with_parity(tmp_path, variant):
     from export.__main__ import main as export_main
     from export.check import run_check
