@@ -116,7 +116,7 @@ def test_training_stacks_are_the_runtimes(tmp_path):
             np.testing.assert_array_equal(batch.chunk[0].numpy(), ep["chunk"][t])
 
 
-@pytest.mark.parametrize("variant", [[], ["--fine-stride", "4", "--geometric"], ["--grasp-point"]])
+@pytest.mark.parametrize("variant", [[], ["--fine-stride", "4", "--geometric"]])
 def test_perception_student_exports_with_parity(tmp_path, variant):
     from export.__main__ import main as export_main
     from export.check import run_check
@@ -362,36 +362,3 @@ def test_hover_episodes_are_driven_by_the_biased_head_and_join_every_fit(tmp_pat
     assert recipe.stores(1) == [recipe.store(0), recipe.store(1), recipe.hover_store()]
     assert recipe_main(["--out", str(tmp_path / "x"), "--hover-episodes", "1"]) == 2
     assert "--hover-episodes needs --head" in capsys.readouterr().err
-
-
-@pytest.mark.parametrize("kind", ["cube", "can"])
-def test_a_grasp_point_head_reads_the_experts_grasp_height_from_the_facts(kind):
-    """``grasp_point``: from a frame's true facts and joint state the network finds the offset to the height
-    the expert grasps at, on a kind whose fingertips set it (the cube) and on one whose palm does (the tall
-    can, never trained on), through the Panda's forward kinematics and the table under the robot's base."""
-    from hil_sim.world import TABLE_Z
-    from trainer.student.config import StudentConfig
-    from trainer.student.model import PerceptionStudent, hand_pose
-    from trainer.teacher.scripted import ExpertConfig, grasp_height
-
-    env = GraspEnv(EnvConfig(objects=(kind,), max_steps=40, render_depth=False))
-    obs, info = env.reset(seed=3, options={"kind": kind})
-    expert = ReactiveExpert()
-    expert.reset(info)
-    for _ in range(15):
-        obs, _, _, _, info = env.step(expert.act(obs))
-    net = PerceptionStudent(StudentConfig(perception="privileged", grasp_point=True, head_dims=(16, 32),
-                                          state_features=16, step_features=16))
-    net.label_norm.fit(-np.ones(8), np.ones(8))  # standardised = metres: the offset reads out directly
-    state = torch.from_numpy(info["state"][None].astype(np.float32))
-    metres = torch.from_numpy(frame_labels(env)[None, :8].astype(np.float32))
-    read = net.to_grasp_point(metres, hand_pose(state))[0].numpy()
-    centre, _ = env.world.object_pose()
-    hand, _ = env.world.ee_pose()
-    height = grasp_height(centre[2], env.world.object_extent()[2], TABLE_Z)
-    c = ExpertConfig()
-    ruled_by = {"cube": TABLE_Z + c.tip_clearance_m, "can": centre[2] + 0.06 - c.palm_clearance_m}
-    assert height == pytest.approx(ruled_by[kind])
-    np.testing.assert_allclose(read[2], height - hand[2], atol=2e-3)
-    np.testing.assert_allclose(read[:2], obs[OBJECT_FROM_HAND][:2], atol=2e-3)
-    env.close()

@@ -24,7 +24,7 @@ from trainer.student.model import PerceptionStudent
 from trainer.student.perception import HAND_FEATURES
 
 HEAD_FIELDS = ("action_horizon", "exec_horizon", "state_features", "head_dims", "step_features",
-               "train_timesteps", "prediction", "state_dim", "action_dim", "grasp_point")
+               "train_timesteps", "prediction", "state_dim", "action_dim")
 """Settings of the head's network that the composed student takes from the privileged student."""
 
 

@@ -95,12 +95,6 @@ class StudentConfig:
     """``perception="depth"``: the action head reads the depth features beside the facts. False: it reads
     only what the privileged head (M0) reads (the facts, the joint state, the hand's pose), so that a head
     trained on the true facts can act on the readout (``trainer student compose``)."""
-    grasp_point: bool = False
-    """The head reads the offset to the expert's grasp point (``trainer.teacher.scripted.grasp_height`` of the
-    facts and the hand's height over the table) in place of the offset to the object's centre and its size.
-    Why: the size is what differs on kinds never trained on (the can is twice as tall as any seen kind), and a
-    head reading it acts out of range there; the offset to the grasp point goes to 0 at the grasp on every
-    kind."""
     geometric: bool = False
     """``perception="depth"``: the readout also reads the two supervised keypoints' difference and the depths
     under them (each keypoint's attention-weighted depth of the latest frame) and their difference: the

@@ -16,16 +16,11 @@ import torch
 from torch import nn
 
 from runtime.franka_driver.kinematics import HIL_SIM_Q_OFFSET, tcp_frame
-from trainer.sim.labels import GRASP_YAW, READOUT, SIZE
+from trainer.sim.labels import GRASP_YAW, READOUT
 from trainer.student.config import StudentConfig
 from trainer.student.data import column_scale
 from trainer.student.normaliser import RangeNormaliser
 from trainer.student.perception import HAND_FEATURES, Perception, ResNet18
-from trainer.teacher.scripted import grasp_height
-
-GRASP_FACTS = 5
-"""What a ``grasp_point`` head reads of the facts: the offset to the grasp point (x, y, z), the grasp
-direction."""
 
 
 def step_embedding(steps: torch.Tensor, dim: int) -> torch.Tensor:
@@ -237,7 +232,7 @@ class PerceptionStudent(nn.Module):
                                       config.fine_keypoints, config.fine_stride, config.geometric)
                            if depth else None)
         features = self.perception.out_features if depth and config.head_features else 0
-        inputs = config.state_dim + HAND_FEATURES + (GRASP_FACTS if config.grasp_point else READOUT) + 2
+        inputs = config.state_dim + HAND_FEATURES + READOUT + 2
         self.state_mlp = nn.Sequential(nn.Linear(inputs, config.state_features), nn.ReLU(),
                                        nn.Linear(config.state_features, config.state_features))
         self.head = ConditionalUnet1d(config.action_dim, features + config.state_features, config.head_dims,
@@ -260,21 +255,9 @@ class PerceptionStudent(nn.Module):
         if not self.config.head_features:
             features = features[:, :0]
         hand = hand_pose(state)
-        metres = self.label_norm.unnormalise(facts)
-        turn = into_fingers(metres[:, GRASP_YAW], hand)
-        if self.config.grasp_point:
-            facts = self.to_grasp_point(metres, hand)
+        turn = into_fingers(self.label_norm.unnormalise(facts)[:, GRASP_YAW], hand)
         x = torch.cat([self.state_norm.normalise(state), self.hand_norm.normalise(hand), facts, turn], dim=-1)
         return torch.cat([features, self.state_mlp(x)], dim=-1)
-
-    def to_grasp_point(self, metres: torch.Tensor, hand: torch.Tensor) -> torch.Tensor:
-        """Facts in metres -> the standardised offset to the expert's grasp point and the grasp direction
-        (``GRASP_FACTS`` columns): the offset's height is the grasp height's, the size is dropped."""
-        offset_z, hand_z = metres[:, 2:3], hand[:, 2:3]  # the base sits on the table: hand_z is over it
-        grasp_z = grasp_height(hand_z + offset_z, metres[:, SIZE][:, 2:3], torch.zeros_like(hand_z),
-                               maximum=torch.maximum)
-        grasp = torch.cat([metres[:, :2], grasp_z - hand_z, metres[:, GRASP_YAW], metres[:, SIZE]], dim=-1)
-        return self.label_norm.normalise(grasp)[:, :GRASP_FACTS]
 
     def fit_normalisers(self, state: np.ndarray, action: np.ndarray, labels: np.ndarray) -> None:
         """Min-max of states, actions and hand poses; mean and std of the facts (``labels`` [N, >= 8])."""

@@ -104,9 +104,6 @@ class RecipeConfig:
     near_loss: float = 0.0
     """Weight of the readout's offset error relative to the distance to the object
     (``DistillConfig.near_loss``)."""
-    grasp_point: bool = False
-    """The head reads the offset to the expert's grasp point instead of the object's centre and size
-    (``StudentConfig.grasp_point``)."""
     fine_stride: int = 8
     """The fine keypoints' stride, 8 or 4 (``StudentConfig.fine_stride``)."""
     geometric: bool = False
@@ -124,7 +121,7 @@ class RecipeConfig:
         return StudentConfig(perception=self.perception, width=self.width, head_dims=self.head_dims,
                              state_features=self.state_features, exec_horizon=self.exec_horizon,
                              prediction=self.prediction, fine_stride=self.fine_stride,
-                             geometric=self.geometric, grasp_point=self.grasp_point)
+                             geometric=self.geometric)
 
     def spec(self) -> DepthSpec:
         width, _, height = self.resolution.partition("x")

@@ -109,7 +109,8 @@ class ScriptedExpert:
         """Grasp-site position and top-down hand frame of the grasp on the object as it lies now."""
         c = self.config
         obj = priv[OBJECT_POSITION]
-        height = grasp_height(obj[2], self._extent[2], TABLE_Z, c)
+        height = max(obj[2] + c.pad_offset_m, obj[2] + self._extent[2] - c.palm_clearance_m,
+                     TABLE_Z + c.tip_clearance_m)
         return np.array([obj[0], obj[1], height]), _top_down(self._grasp_yaw(priv[OBJECT_QUAT], rot))
 
     def _plan(self, priv: np.ndarray, ee: np.ndarray, rot: np.ndarray) -> _Goal:
@@ -187,15 +188,6 @@ def _holding(priv: np.ndarray, ee: np.ndarray) -> bool:
     rel = priv[OBJECT_POSITION] - ee
     return bool(np.linalg.norm(rel[:2]) < 0.03 and -0.07 < rel[2] < 0.03
                 and priv[FINGERS].sum() > _SHUT_M)
-
-
-def grasp_height(centre_z, half_height, table_z, c: ExpertConfig = ExpertConfig(), maximum=max):
-    """The expert's grasp-site height for an object centred at ``centre_z`` with half height ``half_height``
-    on a table at ``table_z``: the pads on the centre, unless the palm would press on a tall object's top or
-    the fingertips touch the table. Works on floats, or on tensors with ``maximum=torch.maximum``
-    (``trainer.student.model``: the head that reads the grasp point)."""
-    return maximum(maximum(centre_z + c.pad_offset_m, centre_z + half_height - c.palm_clearance_m),
-                   table_z + c.tip_clearance_m)
 
 
 def _top_down(yaw: float) -> np.ndarray:
