@@ -6,7 +6,7 @@
               round's learner, the shipped file)
     dagger    the learner's own episodes labelled by the expert (rounds 1..R, beta halved each round)
     hover     with ``--hover-episodes``: the head (``--head``) drives on facts offset by ``--hover-cm``, the
-              expert labels every state; in every fit from then on
+              expert labels every state; in every fit
     readout   a depth student's readout errors on frames it was not trained on: the next round's, and the
               last student's own episodes (seeds 30000..): fit/roundR/readout.json (milestone M1)
     curve     held-out success after each fit (seeds 20000..): learning_curve.csv and .png
@@ -91,10 +91,11 @@ class RecipeConfig:
     perception."""
     hover_episodes: int = 0
     """Episodes driven by ``head`` on the true facts offset by ``hover_cm`` in a random horizontal direction
-    (fixed per episode), every state labelled by the expert (``data/hover.zarr``, in each fit from the next
-    on). They hold what the other stores seldom do and the readout misses most: the hand near the object
-    but 1-2 cm beside it (expert and learner frames near the object are mostly on target, so the readout
-    learned to say "nearly there" there: ``docs/history.md``, 2026-11-27)."""
+    (fixed per episode), every state labelled by the expert (``data/hover.zarr``, in every fit). They hold
+    what the other stores seldom do and the readout misses most: the hand near the object but 1-2 cm beside
+    it (expert and learner frames near the object are mostly on target, so the readout learned to say
+    "nearly there" there: ``docs/history.md``, 2026-11-27). Round 4 with 100 of them (and its own round's
+    data) against round 3, same 180 seeds: 85.6 against 79.4 % seen (17 episodes won, 6 lost)."""
     hover_cm: float = 1.5
     """How far beside the object (cm) the head aims in the hover episodes: inside the 0.7-2 cm band where the
     readout reports least of the offset (``readout.OFF_TARGET_M``)."""
@@ -150,9 +151,9 @@ class Recipe:
         self._settings()
         if self.cfg.threads:
             torch.set_num_threads(self.cfg.threads)
+        self.hover()  # the head's episodes depend on no round: collected first, in every fit
         for r in range(self.cfg.rounds + 1):
             self.collect(r)
-            self.hover()
             if r:
                 self.readout(r - 1, self.store(r))
             self.fit(r)
