@@ -46,11 +46,11 @@ def main() -> None:
         raise SystemExit(f"{args.init} is a {source.config.perception} student, not a privileged head")
     cfg = source.config
     data = LabelledSteps(args.stores, cfg.obs_horizon, cfg.action_horizon, depth=False)
-    info = dataclasses.replace(source.info, data={"stores": [str(s) for s in args.stores], "steps": len(data),
-                                                  "init": str(args.init)})
+    provenance = {"init": str(args.init), "stores": [str(s) for s in args.stores]}
+    info = dataclasses.replace(source.info, data={**provenance, "steps": len(data)})
     fit = distill(data, args.out, cfg, DistillConfig(steps=args.steps, batch=args.batch, lr=args.lr),
                   info, args.init)
-    result = {"init": str(args.init), "stores": [str(s) for s in args.stores], "fit": fit}
+    result = {**provenance, "fit": fit}
     for group in ("seen", "unseen"):
         run = evaluate(f"oracle:{args.out / CKPT_NAME}", GROUPS[group], args.episodes, workers=args.workers)
         result[group] = {k: run[k] for k in ("success_rate", "ci95", "per_object", "first_close",
