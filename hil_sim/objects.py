@@ -109,10 +109,55 @@ BUILTIN: tuple[ObjectKind, ...] = (
                              Geom("capsule", (0.022,), fromto=(-0.05, 0, 0.014, 0.05, 0, 0.014))),
                0.10, 0.8, (0.8, 0.6, 0.35, 1), seen=False),
 )
-KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN}
+SHAPE_COUNT, SHAPE_SEED = 24, 0
+"""How many procedural training shapes there are (group ``shapes``) and the seed that draws them."""
+MIN_HALF_HEIGHT = 0.02
+SHAPE_DENSITY = 600.0
+"""kg/m^3 of a procedural shape (a fruit's is 500-1000), its mass then held to the built-ins' 0.05-0.35 kg."""
+
+
+def _shape(i: int, rng: np.random.Generator) -> ObjectKind:
+    """Training shape ``shape<i>``: a box, a flattened ellipsoid or a lying capsule of random proportions.
+
+    Only the primitive types of the seen kinds are drawn: no upright cylinder and no mesh, so the unseen can,
+    wheel and starfruit stay of a type no training shape has. Every shape is stable as it lies (an ellipsoid's
+    height below its horizontal semi-axes; a box no taller than twice its narrow side), at least 4 cm tall
+    (the reactive expert lifts none 2-3 cm tall) and at most 7.2 cm across its narrow
+    side, like the apple."""
+    narrow = rng.uniform(MIN_HALF_HEIGHT, 0.036)
+    kind = ("box", "ellipsoid", "capsule")[i % 3]
+    if kind == "box":
+        size = (narrow, rng.uniform(narrow, 0.07), rng.uniform(MIN_HALF_HEIGHT, min(0.065, 2 * narrow)))
+        geom, volume = Geom("box", size), 8 * math.prod(size)
+    elif kind == "ellipsoid":
+        size = (narrow, rng.uniform(narrow, 0.06), max(MIN_HALF_HEIGHT, rng.uniform(0.5, 0.95) * narrow))
+        geom, volume = Geom("ellipsoid", size), 4 / 3 * math.pi * math.prod(size)
+    else:
+        half = rng.uniform(0.0, 0.05)  # the straight part's half length along x
+        geom = Geom("capsule", (narrow,), fromto=(-half, 0.0, 0.0, half, 0.0, 0.0))
+        volume = math.pi * narrow ** 2 * (2 * half + 4 / 3 * narrow)
+    mass = float(np.clip(SHAPE_DENSITY * volume, 0.05, 0.35))
+    rgba = (*np.round(rng.uniform(0.15, 0.95, 3), 2), 1.0)
+    return ObjectKind(f"shape{i:02d}", 13, (_rounded(geom),), round(mass, 3),
+                      round(float(rng.uniform(0.7, 1.0)), 2), rgba)
+
+
+def _rounded(geom: Geom) -> Geom:
+    return Geom(geom.type, tuple(round(float(v), 4) for v in geom.size),
+                fromto=tuple(round(float(v), 4) for v in geom.fromto))
+
+
+_SHAPE_RNG = np.random.default_rng(SHAPE_SEED)
+SHAPES: tuple[ObjectKind, ...] = tuple(_shape(i, _SHAPE_RNG) for i in range(SHAPE_COUNT))
+"""Procedural shapes for training only (category 13, as user objects): the seen kinds' primitives at random
+proportions and sizes, which a student needs to read and grasp shapes it was not shown. Evaluation keeps
+the 12 built-in kinds."""
+KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN + SHAPES}
 SEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if k.seen)
 UNSEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if not k.seen)
-GROUPS: dict[str, tuple[str, ...]] = {"seen": SEEN, "unseen": UNSEEN, "all": SEEN + UNSEEN}
+GROUPS: dict[str, tuple[str, ...]] = {"seen": SEEN, "unseen": UNSEEN, "all": SEEN + UNSEEN,
+                                      "shapes": tuple(k.name for k in SHAPES),
+                                      "train": SEEN + tuple(k.name for k in SHAPES)}
 _MESH_SUFFIXES = (".stl", ".obj")
 MESH_DENSITY = 1000.0
 """kg/m^3 of a bare mesh object: MuJoCo's default geom density (about a fruit's, so a 6 cm cube weighs
@@ -157,7 +202,8 @@ def resolve(name_or_path: str, category_id: int = 13) -> AnyObject:
         return KINDS[name_or_path]
     looks_like_path = any(c in name_or_path for c in "/\\.")
     if not looks_like_path:
-        raise UnknownObjectError(f"unknown object kind {name_or_path!r}; built-in kinds: {', '.join(KINDS)} "
+        raise UnknownObjectError(f"unknown object kind {name_or_path!r}; built-in kinds: "
+                                 f"{', '.join(GROUPS['all'])} and shape00..shape{SHAPE_COUNT - 1:02d} "
                                  f"(or give a path to an .stl/.obj mesh or an MJCF .xml)")
     path = Path(name_or_path).expanduser().resolve()
     if not path.is_file():

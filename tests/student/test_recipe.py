@@ -362,3 +362,18 @@ def test_hover_episodes_are_driven_by_the_biased_head_and_join_every_fit(tmp_pat
     assert recipe.stores(1) == [recipe.store(0), recipe.store(1), recipe.hover_store()]
     assert recipe_main(["--out", str(tmp_path / "x"), "--hover-episodes", "1"]) == 2
     assert "--hover-episodes needs --head" in capsys.readouterr().err
+
+
+def test_training_kinds_are_chosen_by_objects_and_a_bad_one_is_refused_in_one_line(tmp_path, capsys):
+    """``--objects train``: the demos and the rounds draw from the seen kinds and the procedural shapes; the
+    curve and the evaluation keep the built-in groups. An unknown kind stops the recipe before any work."""
+    from trainer.student.recipe import Recipe, RecipeConfig
+    from trainer.student.recipe import main as recipe_main
+
+    assert Recipe(tmp_path / "s", RecipeConfig()).env.objects == GROUPS["seen"]
+    train = Recipe(tmp_path / "t", RecipeConfig(objects="train")).env.objects
+    assert train == GROUPS["seen"] + GROUPS["shapes"]
+    assert recipe_main(["--out", str(tmp_path / "x"), "--objects", "apple,dragonfruit"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: unknown object kind 'dragonfruit'") and "\n" not in err
+    assert not (tmp_path / "x").exists()

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import torch
 
-from hil_sim.objects import GROUPS
+from hil_sim.objects import GROUPS, select_kinds
 from runtime.preprocess import DepthSpec
 from trainer.argspec import add_dataclass_args, from_args
 from trainer.dataset import DatasetError, DemoStore
@@ -89,6 +89,10 @@ class RecipeConfig:
     facts). Each depth student is then composed with its head (``trainer student compose``) before export,
     so the learner, the curve and the shipped file act with M0's head on the readout; the fits teach
     perception."""
+    objects: str = "seen"
+    """The kinds the training episodes (demos, rounds, hover) draw from: a group (``seen``; ``train``, the
+    seen kinds and 24 procedural shapes, ``hil_sim.objects.SHAPES``) or a comma list. The curve and the
+    evaluation keep the seen and unseen kinds."""
     hover_episodes: int = 0
     """Episodes driven by ``head`` on the true facts offset by ``hover_cm`` in a random horizontal direction
     (fixed per episode), every state labelled by the expert (``data/hover.zarr``, in every fit). They hold
@@ -144,7 +148,8 @@ class Recipe:
 
     def __init__(self, out: Path, cfg: RecipeConfig) -> None:
         self.out, self.cfg = out, cfg
-        self.env = EnvConfig(objects=GROUPS["seen"], render_depth=cfg.perception == "depth", depth=cfg.spec())
+        self.env = EnvConfig(objects=select_kinds(cfg.objects), render_depth=cfg.perception == "depth",
+                             depth=cfg.spec())
         self.dev = device()
 
     def run(self) -> dict:
