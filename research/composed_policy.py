@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -32,59 +31,43 @@ from trainer.dataset import DEPTH_SCALE
 from trainer.eval.stats import wilson_interval
 from trainer.policies import Observation
 from trainer.sim.env import EnvConfig, GraspEnv
-from trainer.sim.labels import GRASP_YAW, OFFSET, READOUT, SIZE, facts
+from trainer.sim.labels import GRASP_YAW, OFFSET, SIZE, facts
 from trainer.sim.rollout import Job, run_episode
 from trainer.student import checkpoint
-from trainer.student.ddim import ddim_plan, denoise
-from trainer.student.onnx_policy import to_env_actions
+from trainer.student.oracle_policy import OraclePolicy
 
-DDIM_STEPS = 4
 GROUPS = {"offset": OFFSET, "yaw": GRASP_YAW, "size": SIZE}
 
 
-def facts_row(obs: Observation, extent: np.ndarray) -> np.ndarray:
-    return facts(obs.privileged, extent)[:READOUT].astype(np.float32)
+class ComposedPolicy(OraclePolicy):
+    """``OraclePolicy``'s head and chunk execution, on the facts the depth student's readout reads."""
 
-
-class ComposedPolicy:
     def __init__(self, onnx_path: Path, head_path: Path, true: tuple[str, ...] = ()) -> None:
-        torch.set_num_threads(1)
+        super().__init__(head_path)
         self.meta = RuntimePolicy(onnx_path).metadata
         self.eye = checkpoint.load(onnx_path.parent / "ckpt.pt").policy()
-        head = checkpoint.load(head_path)
-        self.head, self.config = head.policy(), head.config
-        self.plan = ddim_plan(head.config.train_timesteps, DDIM_STEPS)
         self.frames = FrameStack(self.meta.obs_horizon, self.meta.first_frame)
-        self.queue: deque[np.ndarray] = deque()
-        self.rng = np.random.default_rng(0)
         self.true = [GROUPS[name] for name in true]
-        self.extent = np.zeros(3)
+        self.stack = np.zeros(0, np.float32)
 
     def reset(self, env_info: dict) -> None:
+        super().reset(env_info)
         self.frames.reset()
-        self.queue.clear()
-        self.rng = np.random.default_rng(env_info["episode"]["seed"])
-        self.extent = np.asarray(env_info["object_half_extent"], float)
+
+    def read_facts(self, obs: Observation) -> np.ndarray:
+        state = torch.from_numpy(obs.state[None].astype(np.float32))
+        with torch.no_grad():
+            _, seen, _ = self.eye.perceive(torch.from_numpy(self.stack[None]), state)
+            row = self.eye.label_norm.unnormalise(seen)[0].numpy()
+        truth = facts(obs.privileged, self._extent)
+        for group in self.true:
+            row[group] = truth[group]
+        return row
 
     def act(self, obs: Observation) -> np.ndarray:
-        if len(self.queue) < self.meta.obs_horizon:
-            stack = self.frames.push(normalise(obs.depth, DEPTH_SCALE, self.meta.preprocess))
-        if not self.queue:
-            state = torch.from_numpy(obs.state[None].astype(np.float32))
-            noise = self.rng.standard_normal((1, self.config.action_horizon, self.config.action_dim))
-            with torch.no_grad():
-                _, facts, _ = self.eye.perceive(torch.from_numpy(stack[None]), state)
-                facts = self.eye.label_norm.unnormalise(facts)
-                truth = torch.from_numpy(facts_row(obs, self.extent))
-                for group in self.true:
-                    facts[:, group] = truth[group]
-                facts = self.head.label_norm.normalise(facts)
-                cond = self.head.fuse(facts.new_zeros(1, 0), facts, state)
-                x = denoise(self.head, cond, torch.from_numpy(noise.astype(np.float32)), self.plan,
-                            self.config.prediction)
-                chunk = self.head.action_norm.unnormalise(x)[0].numpy()
-            self.queue.extend(to_env_actions(chunk[: self.config.exec_horizon], 1.0))
-        return self.queue.popleft()
+        if len(self.queue) < self.meta.obs_horizon:  # the frames the next chunk's stack holds
+            self.stack = self.frames.push(normalise(obs.depth, DEPTH_SCALE, self.meta.preprocess))
+        return super().act(obs)
 
 
 def main() -> None:

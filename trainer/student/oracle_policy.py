@@ -48,10 +48,15 @@ class OraclePolicy:
         angle = self._rng.uniform(0, 2 * np.pi)
         self._bias = self.bias_m * np.array([np.cos(angle), np.sin(angle), 0.0])
 
+    def read_facts(self, obs: Observation) -> np.ndarray:
+        """The facts the head reads at a new chunk: the true ones, the offset biased by ``bias_m``."""
+        row = facts(obs.privileged, self._extent)
+        row[OFFSET] += self._bias
+        return row
+
     def act(self, obs: Observation) -> np.ndarray:
         if not self.queue:
-            row = facts(obs.privileged, self._extent)
-            row[OFFSET] += self._bias
+            row = self.read_facts(obs)
             noise = self._rng.standard_normal((1, self.config.action_horizon, self.config.action_dim))
             with torch.no_grad():
                 obs_t = self.net.encode(torch.from_numpy(row[None]), torch.from_numpy(obs.state[None]))
