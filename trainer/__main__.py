@@ -13,6 +13,8 @@ MENU = Menu("python -m trainer", {
     "ddg": ("Diffusion Depth Generator: fit | generate | metrics | paired | bench", "trainer.ddg.cli:main"),
     "student": ("diffusion-policy student: fit | recipe | readout | init | probe",
                 "trainer.student.cli:main"),
+    "compare": ("two evaluate results on the same episodes, episode by episode (exact McNemar)",
+                "trainer.eval.compare:main"),
     "table": ("many evaluate results as one comparison table (success, 95 % CI)", "trainer.eval.table:main"),
 })
 main = MENU.main
