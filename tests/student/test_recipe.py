@@ -148,13 +148,15 @@ def test_the_recipe_resumes_without_redoing_finished_stages(tmp_path, capsys):
         p: t for p, t in files.items() if p.name != "recipe.json"}
     assert recipe_main([*base, "--head-dims", "16", "16"]) == 2
     assert "other settings" in capsys.readouterr().err
-    summary = json.loads((tmp_path / "r" / "eval_seen.json").read_text())
+    summary = json.loads((tmp_path / "r" / "fit" / "round1" / "eval_seen.json").read_text())
     assert summary["episodes"] == 1 and summary["policy"].endswith("round1/ckpt.pt")
     more = [a if a != "1" or base[i - 1] != "--rounds" else "2" for i, a in enumerate(base)]
     assert recipe_main([*more, "--head-dims", "16", "32"]) == 0  # one more round: only its stages run
     stages = [json.loads(line)["stage"] for line in (tmp_path / "r" / "log.jsonl").read_text().splitlines()]
     assert stages[len(log):] == ["round 2 data", "round 2 fit", "round 2 held-out"]
-    assert json.loads((tmp_path / "r" / "eval_seen.json").read_text())["policy"].endswith("round2/ckpt.pt")
+    assert json.loads((tmp_path / "r" / "fit" / "round2" / "eval_seen.json").read_text())["policy"].endswith(
+        "round2/ckpt.pt")
+    assert (tmp_path / "r" / "fit" / "round1" / "eval_seen.json").read_text() == json.dumps(summary, indent=2)
 
 
 def test_recipe_data_are_refused_by_another_chunk_length(tmp_path):
@@ -216,7 +218,8 @@ def test_a_depth_recipe_runs_its_stages_and_measures_its_readout(tmp_path, with_
         readout = json.loads((out / "fit" / f"round{r}" / "readout.json").read_text())
         assert readout["frames"] > 0 and readout["all"]["offset_cm_median"] > 0
     assert DemoStore.open(out / "data" / "round1.zarr").attrs["learner"].startswith("student:")
-    assert json.loads((out / "eval_unseen.json").read_text())["objects"] == list(GROUPS["unseen"])
+    assert json.loads((out / "fit" / "round1" / "eval_unseen.json").read_text())["objects"] == list(
+        GROUPS["unseen"])
 
 
 def test_one_bad_batch_moves_the_weights_no_further_than_the_clip_allows():

@@ -10,8 +10,8 @@
     readout   a depth student's readout errors on frames it was not trained on: the next round's, and the
               last student's own episodes (seeds 30000..): fit/roundR/readout.json (milestone M1)
     curve     held-out success after each fit (seeds 20000..): learning_curve.csv and .png
-    evaluate  the last round's student on seen and unseen kinds (seeds 10000..): eval_seen.json and
-              eval_unseen.json
+    evaluate  the last round's student on seen and unseen kinds (seeds 10000..): fit/roundR/eval_seen.json
+              and eval_unseen.json
 
 Artifacts live in ``--out`` (default: ``$DIFFUDEPGRASP_HOME/recipe/NAME``, else
 ``~/.cache/diffudepgrasp/recipe/NAME``), outside any checkout, so a fresh clone resumes where the last one
@@ -245,9 +245,8 @@ class Recipe:
     def evaluate(self) -> dict:
         c, results = self.cfg, {}
         for objects in ("seen", "unseen"):
-            path = self.out / f"eval_{objects}.json"
-            last = json.loads(path.read_text())["policy"] if path.is_file() else ""
-            if last != self.learner(c.rounds):  # not yet, or of an earlier last round
+            path = self.run_dir(c.rounds) / f"eval_{objects}.json"  # in the round's folder: a later round
+            if not path.is_file():                                    # leaves this one's result in place
                 result = evaluate(self.learner(c.rounds), GROUPS[objects], c.eval_episodes, seed=EVAL_SEED,
                                   workers=c.workers)
                 path.write_text(json.dumps(result, indent=2))
