@@ -111,7 +111,8 @@ BUILTIN: tuple[ObjectKind, ...] = (
 )
 SHAPE_COUNT, SHAPE_SEED = 24, 0
 """How many procedural training shapes there are (group ``shapes``) and the seed that draws them."""
-MIN_HALF_HEIGHT = 0.02
+MIN_HALF = 0.02
+"""A shape's smallest half extent, across or up (4 cm): the reactive expert lifts no shape 2-3 cm tall."""
 SHAPE_DENSITY = 600.0
 """kg/m^3 of a procedural shape (a fruit's is 500-1000), its mass then held to the built-ins' 0.05-0.35 kg."""
 
@@ -121,16 +122,15 @@ def _shape(i: int, rng: np.random.Generator) -> ObjectKind:
 
     Only the primitive types of the seen kinds are drawn: no upright cylinder and no mesh, so the unseen can,
     wheel and starfruit stay of a type no training shape has. Every shape is stable as it lies (an ellipsoid's
-    height below its horizontal semi-axes; a box no taller than twice its narrow side), at least 4 cm tall
-    (the reactive expert lifts none 2-3 cm tall) and at most 7.2 cm across its narrow
-    side, like the apple."""
-    narrow = rng.uniform(MIN_HALF_HEIGHT, 0.036)
+    height below its horizontal semi-axes; a box no taller than twice its narrow side) and spans 4-7.2 cm
+    across its narrow side (the apple 7.2)."""
+    narrow = rng.uniform(MIN_HALF, 0.036)
     kind = ("box", "ellipsoid", "capsule")[i % 3]
     if kind == "box":
-        size = (narrow, rng.uniform(narrow, 0.07), rng.uniform(MIN_HALF_HEIGHT, min(0.065, 2 * narrow)))
+        size = (narrow, rng.uniform(narrow, 0.07), rng.uniform(MIN_HALF, min(0.065, 2 * narrow)))
         geom, volume = Geom("box", size), 8 * math.prod(size)
     elif kind == "ellipsoid":
-        size = (narrow, rng.uniform(narrow, 0.06), max(MIN_HALF_HEIGHT, rng.uniform(0.5, 0.95) * narrow))
+        size = (narrow, rng.uniform(narrow, 0.06), max(MIN_HALF, rng.uniform(0.5, 0.95) * narrow))
         geom, volume = Geom("ellipsoid", size), 4 / 3 * math.pi * math.prod(size)
     else:
         half = rng.uniform(0.0, 0.05)  # the straight part's half length along x

@@ -36,4 +36,5 @@ def test_every_shape_rests_as_it_lies_and_fits_the_gripper(shapes_world: World, 
     half = shapes_world.object_extent()
     assert np.linalg.norm(pos - start) < 0.003, "a shape must not roll or topple on its own"
     assert pos[2] - TABLE_Z == pytest.approx(half[2], abs=0.004), "it lies on its bottom face"
-    assert 2 * min(half[:2]) <= 0.0725 and 2 * half[2] >= 2 * objects.MIN_HALF_HEIGHT - 1e-6
+    assert objects.MIN_HALF - 1e-6 <= min(half[:2]) <= 0.03625, "4-7.2 cm across the narrow side"
+    assert half[2] >= objects.MIN_HALF - 1e-6, "at least 4 cm tall"
