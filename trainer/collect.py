@@ -21,7 +21,7 @@ from runtime.preprocess import DepthSpec
 from trainer.dataset import DatasetError, DemoStore, EpisodeRecord, sizes
 from trainer.policies import NEEDS_DEPTH, PolicyError, depth_spec, parse
 from trainer.sim.env import EnvConfig
-from trainer.sim.rollout import Job, Rollout, rollouts
+from trainer.sim.rollout import Rollout, rollouts, schedule
 from trainer.sim.sensors import make_sensor
 
 
@@ -96,7 +96,7 @@ def collect(args: argparse.Namespace) -> dict:
                                     "action_noise": args.action_noise, "wrist_noise": args.wrist_noise})
     start_attempt = int(store.attrs["attempted"])
     limit = args.max_attempts or 2 * args.episodes + 20
-    jobs = [Job(args.seed + i, kinds[i % len(kinds)]) for i in range(start_attempt, limit)]
+    jobs = schedule(kinds, args.seed, limit, start_attempt)
     bar = tqdm(total=args.episodes, initial=store.n_episodes, desc="collect", unit="ep")
     t0, new = time.perf_counter(), 0
     results = rollouts(config, args.teacher, jobs, workers=args.workers, record=True,

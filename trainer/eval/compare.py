@@ -17,6 +17,8 @@ from pathlib import Path
 
 from scipy import stats
 
+from trainer.sim.rollout import schedule
+
 
 class CompareError(ValueError):
     """A file that is not a ``trainer evaluate`` result, or two results not run on the same episodes."""
@@ -31,7 +33,7 @@ def episodes(path: Path) -> tuple[dict[int, str], set[int], str]:
         policy = str(result["policy"])
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise CompareError(f"{path}: not a trainer evaluate result with failed_seeds ({exc})") from None
-    return {first + i: kinds[i % len(kinds)] for i in range(n)}, failed, policy
+    return {job.seed: job.kind for job in schedule(kinds, first, n)}, failed, policy
 
 
 def mcnemar_p(won: int, lost: int) -> float:

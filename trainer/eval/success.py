@@ -27,7 +27,7 @@ from runtime.preprocess import RESTORE_METHODS
 from trainer.eval.stats import median_interval, wilson_interval
 from trainer.policies import NEEDS_DEPTH, PolicyError, depth_spec, parse
 from trainer.sim.env import EnvConfig
-from trainer.sim.rollout import Job, rollouts
+from trainer.sim.rollout import rollouts, schedule
 from trainer.sim.sensors import SensorError, make_sensor, reads_clean_depth
 
 
@@ -55,7 +55,7 @@ def evaluate(policy: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 
     kind, _ = parse(policy)
     config = EnvConfig(objects=kinds, randomise=randomise, depth=depth_spec(policy),
                        render_depth=NEEDS_DEPTH[kind] and reads_clean_depth(sensor))
-    jobs = [Job(seed + i, kinds[i % len(kinds)]) for i in range(episodes)]
+    jobs = schedule(kinds, seed, episodes)
     per: dict[str, list[bool]] = {k: [] for k in kinds}
     steps, closes, failed, start = [], [], [], time.perf_counter()
     runs = rollouts(config, policy, jobs, workers=workers, sensor_spec=sensor, restore=restore)

@@ -25,6 +25,12 @@ class Job:
     kind: str
 
 
+def schedule(kinds: tuple[str, ...], seed: int, episodes: int, start: int = 0) -> list[Job]:
+    """Episodes ``start..episodes-1`` of a run: episode i has seed ``seed + i`` and cycles through ``kinds``,
+    so two runs with the same kinds and seeds meet the same scenes (``trainer compare`` pairs them)."""
+    return [Job(seed + i, kinds[i % len(kinds)]) for i in range(start, episodes)]
+
+
 @dataclass
 class Rollout:
     seed: int

@@ -21,7 +21,7 @@ from trainer.dataset import DemoStore, EpisodeRecord
 from trainer.policies import Observation, make_policy
 from trainer.sim.env import HAND_POSITION, EnvConfig, GraspEnv
 from trainer.sim.labels import frame_labels
-from trainer.sim.rollout import Job, in_workers, start_episode
+from trainer.sim.rollout import Job, in_workers, schedule, start_episode
 from trainer.teacher.scripted import ReactiveExpert
 
 
@@ -105,7 +105,7 @@ def collect_round(path: Path, config: EnvConfig, spec: RoundSpec, *, episodes: i
                              attrs={"teacher": "reactive", "learner": spec.learner, "beta": spec.beta,
                                     "seed": seed, "objects": list(config.objects)})
     kinds = config.objects
-    jobs = [Job(seed + i, kinds[i % len(kinds)]) for i in range(int(store.attrs["attempted"]), episodes)]
+    jobs = schedule(kinds, seed, episodes, int(store.attrs["attempted"]))
     bar = tqdm(total=episodes, initial=episodes - len(jobs), desc=f"round {path.stem}", unit="ep")
     for record, success in in_workers(_init, (config, spec), _work, jobs, workers, _WORKER):
         store.append(record)
