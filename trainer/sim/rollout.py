@@ -70,9 +70,9 @@ def expert_scenes(env: GraspEnv, kinds: tuple[str, ...], episodes: int, steps: t
     ``steps``: yields (episode, step, the env's info) with the world in that state. An episode that ends
     before a step yields only the steps it reached."""
     sensors = list(sensors)
-    for i in range(episodes):
+    for i, job in enumerate(schedule(kinds, seed, episodes)):
         expert = make_policy("scripted")
-        info = start_episode(env, expert, Job(seed + i, kinds[i % len(kinds)]), sensors)
+        info = start_episode(env, expert, job, sensors)
         obs = env.observation()
         for step in range(max(steps) + 1):
             if step in steps:

@@ -16,16 +16,16 @@ from tqdm import tqdm
 from trainer.eval.stats import wilson_interval
 from trainer.policies import Observation, make_policy
 from trainer.sim.env import EnvConfig, GraspEnv
+from trainer.sim.rollout import Job, schedule
 
 _CACHE: dict = {}
 
 
-def _episode(config: EnvConfig, spec: str, job: tuple[int, str]) -> tuple[str, bool, list[float]]:
+def _episode(config: EnvConfig, spec: str, job: Job) -> tuple[str, bool, list[float]]:
     if _CACHE.get("key") != (config, spec):
         _CACHE.update(key=(config, spec), env=GraspEnv(config), policy=make_policy(spec))
     env, policy = _CACHE["env"], _CACHE["policy"]
-    seed, kind = job
-    obs, info = env.reset(seed=seed, options={"kind": kind})
+    obs, info = env.reset(seed=job.seed, options={"kind": job.kind})
     policy.reset(info)
     accel = []
     while True:
@@ -33,15 +33,15 @@ def _episode(config: EnvConfig, spec: str, job: tuple[int, str]) -> tuple[str, b
         obs, _, terminated, truncated, info = env.step(np.asarray(action, np.float32))
         accel.append(-info["terms"]["accel"] / config.weights.w4 / 7)
         if terminated or truncated:
-            return kind, bool(info["success"]), accel
+            return job.kind, bool(info["success"]), accel
 
 
 def measure(spec: str, kinds: tuple[str, ...], episodes: int, *, seed: int = 10_000,
             workers: int = 2) -> dict:
     """Success per kind and mean squared joint acceleration of ``spec`` over ``episodes`` (kinds cycled,
-    seeds seed, seed+1, ... as in ``trainer.eval.success``)."""
+    seeds seed, seed+1, ...: ``trainer.sim.rollout.schedule``)."""
     config = EnvConfig(objects=kinds, render_depth=False)
-    jobs = [(seed + i, kinds[i % len(kinds)]) for i in range(episodes)]
+    jobs = schedule(kinds, seed, episodes)
     work = partial(_episode, config, spec)
     bar = partial(tqdm, total=episodes, desc=f"smoothness {spec}", unit="ep")
     if workers <= 1:
