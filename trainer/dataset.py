@@ -233,6 +233,11 @@ class DemoStore:
         return np.diff(self.episode_ends, prepend=0)
 
     @property
+    def kinds(self) -> list[str]:
+        """Each episode's object kind."""
+        return [str(k) for k in self.root["meta/kind"][:]]
+
+    @property
     def n_episodes(self) -> int:
         return int(self.root["meta/episode_ends"].shape[0])
 

@@ -217,6 +217,7 @@ def test_a_depth_recipe_runs_its_stages_and_measures_its_readout(tmp_path, with_
         assert (out / "fit" / f"round{r}" / "composed.pt").is_file() == with_head
         readout = json.loads((out / "fit" / f"round{r}" / "readout.json").read_text())
         assert readout["frames"] > 0 and readout["all"]["offset_cm_median"] > 0
+        assert set(readout["near_by_kind"]) <= set(GROUPS["seen"])
     assert DemoStore.open(out / "data" / "round1.zarr").attrs["learner"].startswith("student:")
     assert json.loads((out / "fit" / "round1" / "eval_unseen.json").read_text())["objects"] == list(
         GROUPS["unseen"])
@@ -345,6 +346,32 @@ def test_the_readout_reports_how_much_of_a_near_miss_it_sees():
     in_band = int(((length >= 0.007) & (length < 0.02)).sum())
     assert off_target(labels * 0.5, labels) == {"frames": in_band, "read_share_median": 0.5}
     assert off_target(labels, labels)["read_share_median"] == 1.0
+
+
+def test_the_readout_names_the_kind_it_misplaces():
+    """Near the object, each kind's mean error vector: a kind read 2 cm off in x every frame shows as
+    (2, 0, 0), one read exactly as (0, 0, 0); frames far from the object are not counted."""
+    from trainer.student.readout import by_kind
+
+    labels = np.zeros((6, 12), np.float32)
+    labels[2, 0] = 0.2  # the first episode's last frame: 20 cm away, misread by 5 cm
+    estimate = labels.copy()
+    estimate[:3, 0] += [0.02, 0.02, 0.05]
+    result = by_kind(estimate, labels, np.array([3, 6]), ["can", "apple"])
+    assert result["can"] == {"near_frames": 2, "offset_cm_median": 2.0, "mean_error_cm": [2.0, 0.0, 0.0]}
+    assert result["apple"]["mean_error_cm"] == [0.0, 0.0, 0.0]
+
+
+def test_readout_refuses_an_unknown_kind_in_one_line(tmp_path, capsys):
+    from trainer.student.cli import main as student_main
+    from trainer.student.readout import main as readout_main
+
+    eye = tmp_path / "eye.pt"
+    assert student_main(["init", "--out", str(eye), "--perception", "depth", *TINY]) == 0
+    assert readout_main([str(eye), "--store", str(tmp_path / "s.zarr"), "--episodes", "1",
+                         "--objects", "dragonfruit"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: unknown object kind 'dragonfruit'") and "\n" not in err
 
 
 def test_hover_episodes_are_driven_by_the_biased_head_and_join_every_fit(tmp_path, capsys):

@@ -95,7 +95,7 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
         result["hand_offset_err_cm"] = {"median": float(np.median(hand_err)), "mean": float(hand_err.mean())}
     if turn:  # by kind: the round ones have no yaw to read
         turn_err = yaw_error_deg(predicted[:, 5:7], probed[steps, 5:7])
-        kinds = np.repeat([str(k) for k in store.root["meta/kind"][:]], store.episode_lengths)[steps]
+        kinds = np.repeat(store.kinds, store.episode_lengths)[steps]
         result["turn_err_deg"] = {"median": float(np.median(turn_err)), "mean": float(turn_err.mean()),
                                   "median_by_kind": {k: float(np.median(turn_err[kinds == k]))
                                                      for k in sorted(set(kinds))}}

@@ -1,7 +1,8 @@
 """How well a depth student reads the object's facts (milestone M1): its readout against the labels of every
 frame of a labelled store it was not trained on, e.g. the next DAgger round's, which holds its own rollouts.
 
-    python -m trainer student readout CKPT --store held_out.zarr [--episodes 20 --learner student:ONNX]
+    python -m trainer student readout CKPT --store held_out.zarr [--episodes 20 --learner student:ONNX] \
+        [--objects unseen]
 
 The world forgives noise that changes from step to step far better than a constant error (a 1 cm bias in where
 the hand aims costs ~20 % of grasps), so besides per-frame errors this reports each episode's mean error
@@ -18,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hil_sim.objects import GROUPS
+from hil_sim.objects import select_kinds
 from trainer.dataset import DemoStore
 from trainer.sim.env import EnvConfig
 from trainer.sim.labels import GRASP_YAW, OFFSET, READOUT
@@ -46,11 +47,16 @@ def readouts(ckpt_path: Path, store: Path, device: torch.device | str = "cpu",
     return np.concatenate(out), steps.labels_np[:, :READOUT]
 
 
+def offset_errors(estimate: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each frame's offset error vector (cm, base frame) and whether the hand is near the object."""
+    error = (estimate[:, OFFSET] - labels[:, OFFSET]) * 100
+    return error, np.linalg.norm(labels[:, OFFSET][:, :2], axis=1) < NEAR_M
+
+
 def errors(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray) -> dict:
     """Offset errors (cm) per frame and per episode (the norm of its mean error vector: the bias), overall and
     near the object; grasp-direction errors (degrees) where the object has one."""
-    error = (estimate[:, OFFSET] - labels[:, OFFSET]) * 100
-    near = np.linalg.norm(labels[:, OFFSET][:, :2], axis=1) < NEAR_M
+    error, near = offset_errors(estimate, labels)
     episode = np.repeat(np.arange(len(episode_ends)), np.diff(episode_ends, prepend=0))
     result = {"frames": len(error), "episodes": len(episode_ends)}
     for name, mask in (("all", np.ones(len(error), bool)), ("near", near)):
@@ -74,6 +80,21 @@ def errors(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray) -
     return result
 
 
+def by_kind(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray, kinds: list[str]) -> dict:
+    """Near the object, per kind (``kinds``: each episode's): the median offset error and the mean error
+    vector (x, y, z; cm). A shape the readout never learnt shows as a mean error its episodes share."""
+    error, near = offset_errors(estimate, labels)
+    kind_of_frame = np.repeat(np.asarray(kinds), np.diff(episode_ends, prepend=0))
+    result = {}
+    for kind in dict.fromkeys(kinds):
+        mask = near & (kind_of_frame == kind)
+        if mask.any():
+            result[kind] = {"near_frames": int(mask.sum()),
+                            "offset_cm_median": _round(np.median(np.linalg.norm(error[mask], axis=1))),
+                            "mean_error_cm": [_round(v) for v in error[mask].mean(0)]}
+    return result
+
+
 def off_target(estimate: np.ndarray, labels: np.ndarray) -> dict:
     """Of frames with the hand ``OFF_TARGET_M`` off the object: the median share of that horizontal offset the
     readout reports along it (1 = all of it, 0 = "on target"), the one error a closed loop cannot recover."""
@@ -88,8 +109,10 @@ def off_target(estimate: np.ndarray, labels: np.ndarray) -> dict:
 
 def measure(ckpt_path: Path, store: Path, device: torch.device | str = "cpu") -> dict:
     estimate, labels = readouts(ckpt_path, store, device)
+    demos = DemoStore.open(store)
     return {"checkpoint": str(ckpt_path), "store": str(store),
-            **errors(estimate, labels, DemoStore.open(store).episode_ends)}
+            **errors(estimate, labels, demos.episode_ends),
+            "near_by_kind": by_kind(estimate, labels, demos.episode_ends, demos.kinds)}
 
 
 def _round(x: float) -> float:
@@ -106,16 +129,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--learner", default="",
                    help="who drives them: a policy spec (student:ONNX), else the expert")
     p.add_argument("--seed", type=int, default=30_000, help="first episode seed (apart from the recipe's)")
+    p.add_argument("--objects", default="seen",
+                   help="kinds of the episodes collected: a group (seen, unseen, train...) or a comma list")
     p.add_argument("--workers", type=int, default=1)
     args = p.parse_args(argv)
     try:
         if args.episodes:
             spec = checkpoint.load(args.checkpoint).info.depth_spec
-            env = EnvConfig(objects=GROUPS["seen"], depth=spec)
+            env = EnvConfig(objects=select_kinds(args.objects), depth=spec)
             collect_round(args.store, env, RoundSpec(learner=args.learner), episodes=args.episodes,
                           seed=args.seed, workers=args.workers)
         print(json.dumps(measure(args.checkpoint, args.store), indent=1))
-    except (ValueError, OSError) as exc:
+    except (ValueError, OSError) as exc:  # an unknown kind is an ObjectError, a ValueError
         print(f"error: {exc}", file=sys.stderr)
         return 2
     return 0
