@@ -350,16 +350,20 @@ def test_the_readout_reports_how_much_of_a_near_miss_it_sees():
 
 def test_the_readout_names_the_kind_it_misplaces():
     """Near the object, each kind's mean error vector: a kind read 2 cm off in x every frame shows as
-    (2, 0, 0), one read exactly as (0, 0, 0); frames far from the object are not counted."""
+    (2, 0, 0), one read exactly as (0, 0, 0); frames far from the object are not counted. A kind with a grasp
+    direction read 30 degrees off shows it; a round kind has none to show."""
     from trainer.student.readout import by_kind
 
     labels = np.zeros((6, 12), np.float32)
     labels[2, 0] = 0.2  # the first episode's last frame: 20 cm away, misread by 5 cm
+    labels[3:, 3] = 1.0  # the second kind's grasp direction: (cos 2p, sin 2p) at p = 0
     estimate = labels.copy()
     estimate[:3, 0] += [0.02, 0.02, 0.05]
-    result = by_kind(estimate, labels, np.array([3, 6]), ["can", "apple"])
+    estimate[3:, 3:5] = np.cos(np.pi / 3), np.sin(np.pi / 3)  # read at p = 30 degrees
+    result = by_kind(estimate, labels, np.array([3, 6]), ["can", "block"])
     assert result["can"] == {"near_frames": 2, "offset_cm_median": 2.0, "mean_error_cm": [2.0, 0.0, 0.0]}
-    assert result["apple"]["mean_error_cm"] == [0.0, 0.0, 0.0]
+    assert result["block"] == {"near_frames": 3, "offset_cm_median": 0.0, "mean_error_cm": [0.0, 0.0, 0.0],
+                               "grasp_yaw_deg_median": 30.0}
 
 
 def test_readout_refuses_an_unknown_kind_in_one_line(tmp_path, capsys):

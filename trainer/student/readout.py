@@ -53,6 +53,17 @@ def offset_errors(estimate: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray,
     return error, np.linalg.norm(labels[:, OFFSET][:, :2], axis=1) < NEAR_M
 
 
+def directed(labels: np.ndarray) -> np.ndarray:
+    """Frames whose object has a grasp direction (round kinds have none: their label is (0, 0))."""
+    return np.linalg.norm(labels[:, GRASP_YAW], axis=1) > 0.5
+
+
+def yaw_errors(estimate: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Each frame's grasp-direction error, degrees (meaningful where ``directed``)."""
+    turn = np.arctan2(estimate[:, 4], estimate[:, 3]) - np.arctan2(labels[:, 4], labels[:, 3])
+    return np.degrees(np.abs((turn + np.pi) % (2 * np.pi) - np.pi)) / 2  # doubled angles
+
+
 def errors(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray) -> dict:
     """Offset errors (cm) per frame and per episode (the norm of its mean error vector: the bias), overall and
     near the object; grasp-direction errors (degrees) where the object has one."""
@@ -70,20 +81,19 @@ def errors(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray) -
                         "bias_cm_median": _round(np.median(biases)),
                         "bias_cm_p90": _round(np.percentile(biases, 90))}
     result["off_target"] = off_target(estimate, labels)
-    directed = np.linalg.norm(labels[:, GRASP_YAW], axis=1) > 0.5
-    if directed.any():
-        turn = np.arctan2(estimate[directed, 4], estimate[directed, 3]) - np.arctan2(labels[directed, 4],
-                                                                                     labels[directed, 3])
-        degrees = np.degrees(np.abs((turn + np.pi) % (2 * np.pi) - np.pi)) / 2  # doubled angles
+    degrees = yaw_errors(estimate, labels)[directed(labels)]
+    if len(degrees):
         result["grasp_yaw_deg_median"] = _round(np.median(degrees))
         result["grasp_yaw_deg_p90"] = _round(np.percentile(degrees, 90))
     return result
 
 
 def by_kind(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray, kinds: list[str]) -> dict:
-    """Near the object, per kind (``kinds``: each episode's): the median offset error and the mean error
-    vector (x, y, z; cm). A shape the readout never learnt shows as a mean error its episodes share."""
+    """Near the object, per kind (``kinds``: each episode's): the median offset error, the mean error vector
+    (x, y, z; cm) and, for a kind with a grasp direction, its median error (degrees). A shape the readout
+    never learnt shows as a mean error its episodes share."""
     error, near = offset_errors(estimate, labels)
+    yaw, has_yaw = yaw_errors(estimate, labels), directed(labels)
     kind_of_frame = np.repeat(np.asarray(kinds), np.diff(episode_ends, prepend=0))
     result = {}
     for kind in dict.fromkeys(kinds):
@@ -92,6 +102,8 @@ def by_kind(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray, 
             result[kind] = {"near_frames": int(mask.sum()),
                             "offset_cm_median": _round(np.median(np.linalg.norm(error[mask], axis=1))),
                             "mean_error_cm": [_round(v) for v in error[mask].mean(0)]}
+            if (mask & has_yaw).any():
+                result[kind]["grasp_yaw_deg_median"] = _round(np.median(yaw[mask & has_yaw]))
     return result
 
 
