@@ -29,8 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m trainer collect", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--teacher", default="scripted",
-                   help="scripted | reactive | ppo:CKPT | takeover:STUDENT.onnx (the student drives, then "
-                        "the reactive expert takes over; only the expert's steps are stored: recovery demos)")
+                   help="scripted | reactive | ppo:CKPT, or another policy spec of trainer.policies")
     p.add_argument("--episodes", type=int, required=True, help="successful episodes wanted in the store")
     p.add_argument("--out", type=Path, required=True, help="zarr store (created, or resumed if it exists)")
     p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
@@ -68,8 +67,7 @@ def resolution(text: str) -> tuple[int, int]:
 
 
 def _record(r: Rollout, spec_shape: tuple[int, int]) -> EpisodeRecord:
-    """The episode's steps from the first one a teacher acted on (all of them, but for a takeover)."""
-    f = {key: frames[r.taught_from:] for key, frames in r.frames.items()}
+    f = r.frames
     depth = (np.stack(f["depth"]) if f["depth"] and f["depth"][0] is not None
              else np.zeros((len(f["action"]), *spec_shape), np.uint16))
     optional = {key: np.stack(f[key]) if key in f else None for key in ("rgb", "depth_sensor")}
@@ -84,7 +82,7 @@ def collect(args: argparse.Namespace) -> dict:
     kinds = select_kinds(args.objects)
     spec = DepthSpec(out_width=args.resolution[0], out_height=args.resolution[1])
     read = depth_spec(args.teacher)  # opens a student file once
-    if NEEDS_DEPTH[teacher] and read != spec:  # a takeover student
+    if NEEDS_DEPTH[teacher] and read != spec:  # a student, which reads its own resolution
         raise ValueError(f"the teacher {args.teacher} reads {sizes(read)}: pass its resolution as "
                          "--resolution")
     config = EnvConfig(objects=kinds, render_depth=not args.no_depth, render_rgb=args.rgb,

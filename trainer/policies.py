@@ -4,9 +4,8 @@ A policy has ``reset(env_info)`` (the dict ``GraspEnv.reset`` returns) and ``act
 (env action: 7 joint deltas in [-1, 1] before the scale s, gripper -1/+1). ``obs`` is an ``Observation``
 holding all three views of the world, so a privileged teacher and a depth student share one loop.
 
-Specs: ``scripted`` | ``reactive`` | ``ppo:CHECKPOINT`` | ``student:ONNX`` | ``takeover:ONNX`` (the student,
-then the reactive expert: ``trainer.student.takeover``) | ``oracle:CKPT[@BIAS_CM]`` (the action head on the
-true object facts: ``trainer.student.oracle_policy``). Other engineers' modules provide
+Specs: ``scripted`` | ``reactive`` | ``ppo:CHECKPOINT`` | ``student:ONNX`` | ``oracle:CKPT[@BIAS_CM]`` (the
+action head on the true object facts: ``trainer.student.oracle_policy``). Other engineers' modules provide
 ``trainer.teacher.ppo.load(path)`` and ``trainer.student.onnx_policy.load(path)``; they are imported only
 when asked for. Add a kind by adding one entry to ``LOADERS``.
 """
@@ -81,12 +80,10 @@ LOADERS: dict[str, Callable[[str], Policy]] = {
     "reactive": _reactive,
     "ppo": _lazy("trainer.teacher.ppo", "ppo"),
     "student": _lazy("trainer.student.onnx_policy", "student"),
-    "takeover": _lazy("trainer.student.takeover", "takeover"),
     "oracle": _lazy("trainer.student.oracle_policy", "oracle"),
 }
 
-NEEDS_DEPTH = {"scripted": False, "reactive": False, "ppo": False, "student": True, "takeover": True,
-               "oracle": False}
+NEEDS_DEPTH = {"scripted": False, "reactive": False, "ppo": False, "student": True, "oracle": False}
 """Whether the env must render depth for this kind (privileged teachers run much faster without)."""
 
 
@@ -94,7 +91,7 @@ def parse(spec: str) -> tuple[str, str]:
     kind, _, arg = spec.partition(":")
     if kind not in LOADERS:
         raise PolicyError(f"unknown policy {spec!r}; expected one of: "
-                          "scripted, reactive, ppo:CKPT, student:ONNX, takeover:ONNX, oracle:CKPT[@BIAS_CM]")
+                          "scripted, reactive, ppo:CKPT, student:ONNX, oracle:CKPT[@BIAS_CM]")
     return kind, arg
 
 

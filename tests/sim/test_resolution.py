@@ -33,9 +33,9 @@ def test_collect_stores_the_asked_resolution_and_resumes_only_at_it(tmp_path, ca
     assert "resolution must be WIDTHxHEIGHT" in capsys.readouterr().err
 
 
-def test_a_takeover_student_of_another_resolution_is_refused(untrained_student_onnx, tmp_path, capsys):
-    out = tmp_path / "takeover.zarr"
-    teacher = f"takeover:{untrained_student_onnx}"
+def test_a_student_teacher_of_another_resolution_is_refused(untrained_student_onnx, tmp_path, capsys):
+    out = tmp_path / "student.zarr"
+    teacher = f"student:{untrained_student_onnx}"
     assert collect_main(["--episodes", "1", "--teacher", teacher, "--out", str(out), "--workers", "1",
                          "--resolution", "64x48"]) == 2
     assert "reads 128x96 depth of a 400x300 crop: pass its resolution" in capsys.readouterr().err

@@ -43,8 +43,6 @@ class Rollout:
     frames: dict[str, list[np.ndarray]] = field(default_factory=dict)
     """When recording: per step ``depth``, ``state``, ``action`` (and ``rgb``; with a sensor,
     ``depth_sensor``: the frame it showed the policy), observed before acting."""
-    taught_from: int = 0
-    """First step a teacher acted (a takeover policy's switch step; 0 for a teacher alone)."""
     closed_at: tuple[int, np.ndarray] | None = None
     """The step the policy first commanded the gripper shut, and the object's position from the grasp site
     then (m, world frame): how far from the object a grasp was tried. None if it never closed."""
@@ -110,7 +108,6 @@ def run_episode(env: GraspEnv, policy, job: Job, *, record: bool = False, sensor
         rollout.steps += 1
         if terminated or truncated:
             rollout.success = bool(info["success"])
-            rollout.taught_from = getattr(policy, "taught_from", 0)
             return rollout
 
 

@@ -70,8 +70,7 @@ class FitConfig:
     students learned to ignore depth (docs/student.md); 0 = eq. 10 alone."""
     object_demos: str = ""
     """A second demo store whose frames train only the object head (with weight ``object_loss``), never the
-    actions: e.g. recovery demos (`trainer collect --teacher takeover:S.onnx`), whose frames show the hand
-    where a student puts it and the expert never does. Half a batch of them is drawn per step."""
+    actions. Half a batch of them is drawn per step."""
     keyframe_weight: float = 0.0
     """Draw steps where the expert's action changes more often than the others: step i with probability
     proportional to 1 + this x the change (``DemoDataset.keyframe_weights``), so the few steps that decide
