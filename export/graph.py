@@ -54,8 +54,7 @@ def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path,
     cfg, info, net = ckpt.config, ckpt.info, ckpt.policy()
     return PolicyMetadata(
         preprocess=info.depth_spec, control_rate_hz=info.control_rate_hz, action_scale=info.action_scale,
-        obs_horizon=cfg.obs_horizon, first_frame=cfg.first_frame, action_horizon=cfg.action_horizon,
-        exec_horizon=cfg.exec_horizon,
+        obs_horizon=cfg.obs_horizon, action_horizon=cfg.action_horizon, exec_horizon=cfg.exec_horizon,
         ddim_steps=ddim_steps, ddim_spacing=spacing, state_dim=cfg.state_dim, action_dim=cfg.action_dim,
         normalisation={"state": net.state_norm.summary(), "action": net.action_norm.summary(),
                        "action_units": "env [-1, 1]; joints x action_scale in the graph output"},

@@ -46,7 +46,7 @@ class ComposedPolicy(OraclePolicy):
         super().__init__(head_path)
         self.meta = RuntimePolicy(onnx_path).metadata
         self.eye = checkpoint.load(onnx_path.parent / "ckpt.pt").policy()
-        self.frames = FrameStack(self.meta.obs_horizon, self.meta.first_frame)
+        self.frames = FrameStack(self.meta.obs_horizon)
         self.true = [GROUPS[name] for name in true]
         self.stack = np.zeros(0, np.float32)
 

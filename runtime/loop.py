@@ -171,7 +171,7 @@ class ControlLoop:
         self.metrics = metrics
         self.clock = clock  # the cameras, the driver and the metrics share it (tests swap it)
         self.stop = stop or threading.Event()
-        self.stack = FrameStack(policy.metadata.obs_horizon, policy.metadata.first_frame)
+        self.stack = FrameStack(policy.metadata.obs_horizon)
         self.counts = {"ticks": 0, "late": 0, "skipped": 0, "nan_actions": 0, "rejected_messages": 0,
                        **dict.fromkeys(_FRAME_REJECTIONS.values(), 0)}
         self.faults: dict[str, float] = {}  # active fault code -> when it began
@@ -254,9 +254,9 @@ class ControlLoop:
             if needs_inference:
                 problems = self._infer(obs, state, tick)
         self._update_faults(problems)
-        if problems:  # hold, and forget the chunk and frame history the fault made stale (not the scene)
+        if problems:  # hold, and forget the chunk and frame history the fault made stale
             self._chunk = None
-            self.stack.reset(keep_first=True)
+            self.stack.reset()
             tick.hold = True
             return self._send(tick, self._hold_target(), self._hold_gripper())
         action = self._chunk[tick.tick - self._chunk_tick]

@@ -27,6 +27,15 @@ class MetadataError(ValueError):
     """A policy file whose metadata is missing, of an unknown schema, or inconsistent."""
 
 
+def _drop_retired(d: dict[str, Any]) -> None:
+    """Files exported from 2026-11-25 until ``--first-frame`` was retired carry ``first_frame``: false means
+    what every other file does; true, a depth input led by the episode's first frame, which the runtime no
+    longer stacks."""
+    if d.pop("first_frame", False) is not False:
+        raise MetadataError("first_frame students are no longer supported (their depth input leads with the "
+                            "episode's first frame); use a student that reads the last frames alone")
+
+
 def _check_schema(schema: Any) -> None:
     if schema != SCHEMA:
         raise MetadataError(f"policy metadata schema {schema!r} is not supported (expected {SCHEMA!r}); "
@@ -42,8 +51,6 @@ class PolicyMetadata:
     """``s`` of paper eq. 1, already applied to the 7 joint deltas the graph outputs (radians)."""
     obs_horizon: int = 3
     """Depth frames stacked in the ``depth`` input, oldest first."""
-    first_frame: bool = False
-    """The ``depth`` input leads with the episode's first frame (``FrameStack``); older files had none."""
     action_horizon: int = 16
     """Ha: actions predicted per inference."""
     exec_horizon: int = 8
@@ -75,8 +82,6 @@ class PolicyMetadata:
         for name in ("obs_horizon", "ddim_steps", "state_dim", "action_dim"):
             if not getattr(self, name) >= 1:
                 raise MetadataError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if not isinstance(self.first_frame, bool):
-            raise MetadataError(f"first_frame must be true or false, got {self.first_frame!r}")
         if self.ddim_spacing not in DDIM_SPACINGS:
             raise MetadataError(f"ddim_spacing must be one of {DDIM_SPACINGS}, got {self.ddim_spacing!r}")
         if not all(math.isfinite(x) for x in self.joint_offset_rad):
@@ -85,7 +90,7 @@ class PolicyMetadata:
     def input_shapes(self) -> dict[str, list[int]]:
         """Static graph input shapes, batch 1."""
         spec = self.preprocess
-        return {"depth": [1, self.obs_horizon + self.first_frame, spec.out_height, spec.out_width],
+        return {"depth": [1, self.obs_horizon, spec.out_height, spec.out_width],
                 "state": [1, self.state_dim], "noise": [1, self.action_horizon, self.action_dim]}
 
     def to_json(self) -> str:
@@ -100,6 +105,7 @@ class PolicyMetadata:
         if not isinstance(d, dict):
             raise MetadataError("policy metadata must be a JSON object")
         _check_schema(d.get("schema"))  # first: another schema's fields are no error of this one
+        _drop_retired(d)
         if unknown := set(d) - set(cls.__dataclass_fields__):
             raise MetadataError(f"unknown policy metadata fields {sorted(unknown)}")
         try:

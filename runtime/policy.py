@@ -75,7 +75,7 @@ class Policy:
         return (1, self.metadata.action_horizon, self.metadata.action_dim)
 
     def __call__(self, depth: np.ndarray, state: np.ndarray, noise: np.ndarray | None = None) -> np.ndarray:
-        """depth float32 [frames, H, W] (``FrameStack``'s), state float32 [8] -> actions float32 [Ha, 8].
+        """depth float32 [obs_horizon, H, W] (oldest first), state float32 [8] -> actions float32 [Ha, 8].
         The start noise is drawn from the policy's own generator unless given (paired offline comparisons)."""
         if noise is None:
             noise = self._rng.standard_normal(self.noise_shape, dtype=np.float32)

@@ -193,31 +193,22 @@ def policy_state(q: np.ndarray, gripper_opening: float, joint_offset: tuple[floa
 
 class FrameStack:
     """The last ``n`` preprocessed frames, oldest first. The first frame of an episode fills every slot,
-    in training and at deploy time alike, so the policy never sees an all-empty history. With
-    ``first_frame`` the episode's first frame leads the stack as well (``n + 1`` channels): the scene as
-    it was before the hand came near."""
+    in training and at deploy time alike, so the policy never sees an all-empty history."""
 
-    def __init__(self, n: int = 3, first_frame: bool = False) -> None:
+    def __init__(self, n: int = 3) -> None:
         self._frames: deque[np.ndarray] = deque(maxlen=n)
-        self._keep_first = first_frame
-        self._first: np.ndarray | None = None
 
     def push(self, frame: np.ndarray) -> np.ndarray:
-        """Add the newest frame; return the stack as float32 [n (+ 1), H, W]."""
+        """Add the newest frame; return the stack as float32 [n, H, W]."""
         if not self._frames:
             self._frames.extend([frame] * self._frames.maxlen)
         else:
             self._frames.append(frame)
-        if self._first is None:
-            self._first = frame
-        return np.stack([self._first, *self._frames] if self._keep_first else self._frames)
+        return np.stack(self._frames)
 
-    def reset(self, keep_first: bool = False) -> None:
-        """Forget the history: a new episode, or (``keep_first``) a history made stale within one, whose
-        first frame still shows the scene."""
+    def reset(self) -> None:
+        """Forget the history: a new episode, or a history made stale within one."""
         self._frames.clear()
-        if not keep_first:
-            self._first = None
 
 
 def _nearest_index(src: int, dst: int) -> np.ndarray:

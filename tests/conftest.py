@@ -38,19 +38,6 @@ def untrained_student_onnx(untrained_student_checkpoint: Path) -> Path:
     return out
 
 
-@pytest.fixture(scope="session")
-def first_frame_student_onnx(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The same for a tiny ``--first-frame`` student (its checkpoint beside it), DDIM 2."""
-    from export.__main__ import main as export_main
-    from trainer.student.cli import main as student_main
-
-    ckpt = tmp_path_factory.mktemp("student") / "first.pt"
-    assert student_main(["init", "--out", str(ckpt), "--first-frame", *TINY_STUDENT]) == 0
-    out = ckpt.with_suffix(".onnx")
-    assert export_main([str(ckpt), "--ddim-steps", "2", "--out", str(out)]) == 0
-    return out
-
-
 def write_synthetic_demos(path: Path, episodes: int = 2, steps: int = 12, seed: int = 0,
                           spec: DepthSpec | None = None) -> Path:
     """A tiny demo store in the foundation's layout (trainer.dataset) whose actions are a function of what

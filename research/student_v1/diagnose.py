@@ -11,7 +11,6 @@ python research/student_v1/diagnose.py parts scripted --checkpoint ckpt.pt --sen
 python research/student_v1/diagnose.py turn student:S.onnx --episodes 40     # the wrist's turn at the close
                                                       [--sensor stereo]
 python research/student_v1/diagnose.py copycat S.onnx --demos D.zarr   # its wrist turn on the demos, by step
-                                          [--checkpoint ckpt.pt]  # a --seen-turn student's yaw reading
 python research/student_v1/diagnose.py decides --checkpoint ckpt.pt --demos D.zarr --episodes 600
 
 ``tolerance`` says how precise a grasp must be; ``dart`` what the demos of ``trainer collect --action-noise``
@@ -30,13 +29,12 @@ a student file on the demos' own frames and states (the elongated kinds, the fir
 correlates its wrist-turn action (joint 7, the first of each chunk) with the expert's, by step in the episode,
 beside how well the wrist's angle off home alone predicts the expert's turn, and how well the object's yaw
 from the fingers does: at step 0 neither the wrist's angle nor the frame history says which way the expert
-turns, only the object's yaw in the image does. With a ``--seen-turn`` or ``--seen-yaw`` student's
-``--checkpoint`` it also says how far its object head's yaw reading is off at those steps, and how much weight
-the policy puts on it. ``decides`` asks who decides the first step's turn in the denoiser: at the episode's
-start (and at step 5), it noises the expert's chunk and the same chunk with the wrist's turn flipped, with the
-same noise, to training timestep t, and says how often the network's clean-chunk estimate turns the expert's
-way from each. Where both agree with the expert, the observation decides; where the estimate follows the
-flipped chunk, the noisy chunk does, and in sampling that chunk is the start noise.
+turns, only the object's yaw in the image does. ``decides`` asks who decides the first step's turn in the
+denoiser: at the episode's start (and at step 5), it noises the expert's chunk and the same chunk with the
+wrist's turn flipped, with the same noise, to training timestep t, and says how often the network's
+clean-chunk estimate turns the expert's way from each. Where both agree with the expert, the observation
+decides; where the estimate follows the flipped chunk, the noisy chunk does, and in sampling that chunk is the
+start noise.
 """
 
 from __future__ import annotations
@@ -221,53 +219,27 @@ COPYCAT_STEPS = {"0-1": (0, 2), "2-5": (2, 6), "6-11": (6, 12), "12-29": (12, 30
 """copycat: steps of each episode, from its start."""
 
 
-class YawReading:
-    """A ``--seen-turn`` or ``--seen-yaw`` student checkpoint's object head, read as the object's yaw from the
-    fingers (``--seen-yaw``: as its state MLP reads it, turned into the fingers' frame)."""
-
-    def __init__(self, ckpt_path: str) -> None:
-        from trainer.student import checkpoint
-        from trainer.student.data import column_scale, training_targets
-
-        self.ckpt = checkpoint.load(Path(ckpt_path))
-        if not self.ckpt.config.yaw_target:
-            raise SystemExit(f"{ckpt_path}: neither --seen-turn nor --seen-yaw, its object head reads no yaw")
-        self.net = self.ckpt.policy().eval()
-        if self.ckpt.config.seen_turn:  # its head's standardised units; --seen-yaw's network decodes its own
-            mean, std = column_scale(training_targets(self.ckpt.info.data, True, "fingers"))
-            self.mean, self.std = mean[5:7], std[5:7]
-
-    def off_deg(self, stacks: np.ndarray, states: np.ndarray, truth: np.ndarray) -> np.ndarray:
-        """Per frame stack and state: how far the reading lies from ``truth`` (cos, sin of twice the yaw from
-        the fingers), degrees."""
-        import torch
-
-        from trainer.student.probe import yaw_error_deg
-
-        with torch.no_grad():
-            features = self.net.encoder(torch.from_numpy(stacks))
-            if self.ckpt.config.seen_yaw:
-                guess = self.net.state_input(features, torch.from_numpy(states))[:, -2:].numpy()
-            else:
-                guess = self.net.object_head(features).numpy()[:, 5:7] * self.std + self.mean
-        return yaw_error_deg(guess, truth)
-
-    def weights(self) -> str:
-        """Whether the policy uses the reading: the state MLP's first-layer weights on its last inputs."""
-        w = np.abs(self.net.state_mlp[0].weight.detach().numpy()).mean(axis=0)
-        return f"the state MLP's first layer, mean |weight|: {w[-2:].mean():.3f} on the yaw reading, " \
-               f"{w[:-2].mean():.3f} on its other inputs"
-
-
 def elongated_starts(data, store) -> np.ndarray:
     """The first steps of the banana and block episodes among ``data``'s (a ``DemoDataset`` of ``store``)."""
     kinds = [str(k) for k in store.root["meta/kind"][: len(data.ends)]]
     return np.array([s for s, k in zip(np.r_[0, data.ends[:-1]], kinds, strict=True) if k in ELONGATED], int)
 
 
-def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
+def yaw_from_fingers(store, steps: int) -> np.ndarray:
+    """Per demo step: twice the object's placed yaw from the fingers' closing axis (the grasp site's y axis)
+    at the recorded joints, radians (a grasp turned by pi is the same grasp)."""
+    from hil_sim.kinematics import ArmKinematics
+    from trainer.student.data import per_step
+
+    kinematics, state = ArmKinematics(), np.asarray(store.root["data/state"][:steps], np.float64)
+    sites = [kinematics.site(np.r_[q[:7], 0.0, 0.0]) for q in state]  # fingers: no effect
+    fingers = np.array([np.arctan2(rot[1, 1], rot[0, 1]) for _, rot in sites])
+    return 2 * (per_step(store, "object_yaw", 1)[:steps, 0] - fingers)
+
+
+def copycat(policy_path: str, demos: str) -> None:
     from trainer.dataset import DemoStore
-    from trainer.student.data import DemoDataset, privileged_targets
+    from trainer.student.data import DemoDataset
     from trainer.student.onnx_policy import StudentOnnxPolicy
     from trainer.student.probe import env_chunk
 
@@ -275,8 +247,7 @@ def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
     data = DemoDataset.stacked_as(demos, "gt", policy.meta, policy.meta.preprocess)
     store = DemoStore.open(demos)
     starts = elongated_starts(data, store)
-    doubled_yaw = privileged_targets(store, True, len(data), "fingers")[:, 5:7]
-    reading = None if ckpt_path is None else YawReading(ckpt_path)
+    doubled_yaw = yaw_from_fingers(store, len(data))
     rng = np.random.default_rng(0)
     for name, (lo, hi) in COPYCAT_STEPS.items():
         steps = [s + i for s in starts for i in range(lo, hi)]
@@ -284,19 +255,11 @@ def copycat(policy_path: str, demos: str, ckpt_path: str | None) -> None:
         student = np.array([env_chunk(policy, data.depth_stack(i), data.state[i], n)[0, 6]
                             for i, n in zip(steps, noise, strict=True)])
         expert, wrist = data.action[steps, 6], data.state[steps, 6] - HOME_Q[6]
-        line = (f"steps {name} ({len(steps)}): wrist turn vs the expert's, correlation "
-                f"{np.corrcoef(student, expert)[0, 1]:.2f}; mean |turn| {np.abs(student).mean():.2f} "
-                f"(expert {np.abs(expert).mean():.2f}); the expert's turn vs the wrist's angle off home, "
-                f"correlation {np.corrcoef(wrist, expert)[0, 1]:.2f}, vs sin(2 x the object's yaw from the "
-                f"fingers) {np.corrcoef(doubled_yaw[steps, 1], expert)[0, 1]:.2f}")
-        if reading is not None:
-            off = reading.off_deg(np.stack([data.depth_stack(i) for i in steps]), data.state[steps],
-                                  doubled_yaw[steps])
-            line += f"; the head reads that yaw off by median {np.median(off):.0f} deg (p90 " \
-                    f"{np.percentile(off, 90):.0f})"
-        print(line, flush=True)
-    if reading is not None:
-        print(reading.weights(), flush=True)
+        print(f"steps {name} ({len(steps)}): wrist turn vs the expert's, correlation "
+              f"{np.corrcoef(student, expert)[0, 1]:.2f}; mean |turn| {np.abs(student).mean():.2f} "
+              f"(expert {np.abs(expert).mean():.2f}); the expert's turn vs the wrist's angle off home, "
+              f"correlation {np.corrcoef(wrist, expert)[0, 1]:.2f}, vs sin(2 x the object's yaw from the "
+              f"fingers) {np.corrcoef(np.sin(doubled_yaw[steps]), expert)[0, 1]:.2f}", flush=True)
 
 
 DECIDES_T = (99, 95, 90, 75, 50)
@@ -364,8 +327,7 @@ class ObjectEstimate:
         from runtime.preprocess import FrameStack, normalise
         from trainer.dataset import DEPTH_SCALE
 
-        cfg = self.ckpt.config
-        history = FrameStack(cfg.obs_horizon, cfg.first_frame)  # the runtime's stacking rule
+        history = FrameStack(self.ckpt.config.obs_horizon)  # the runtime's stacking rule
         stacks = np.stack([history.push(normalise(frame, DEPTH_SCALE, self.ckpt.info.depth_spec))
                            for frame in frames])
         with torch.no_grad():
@@ -435,8 +397,7 @@ def main() -> None:
     p.add_argument("policy", nargs="?", default="scripted",
                    help="a trainer policy spec (spread, descent, locate, parts, turn)")
     p.add_argument("--checkpoint", help="locate, parts: the student checkpoint whose object head is "
-                   "measured; copycat: a yaw-reading student's, how well it reads the yaw and if it uses it; "
-                   "decides: the student whose denoiser is read")
+                   "measured; decides: the student whose denoiser is read")
     p.add_argument("--demos", help="copycat, decides: the demo store whose frames and states the student is "
                    "run on")
     p.add_argument("--episodes", type=int, default=30, help="episodes to run (decides: of --demos, 0 = all)")
@@ -459,7 +420,7 @@ def main() -> None:
     elif args.what == "turn":
         turn(args.policy, args.episodes, args.sensor)
     elif args.what == "copycat":
-        copycat(args.policy, args.demos, args.checkpoint)
+        copycat(args.policy, args.demos)
     elif args.what == "decides":
         decides(args.checkpoint, args.demos, args.episodes)
     elif args.what in ("locate", "parts"):

@@ -19,7 +19,6 @@ def test_round_trip():
     (lambda d: d | {"surprise": 1}, "unknown"),
     (lambda d: d | {"preprocess": {"near_m": 3.0}}, "near_m"),
     (lambda d: d | {"ddim_spacing": "linspace"}, "ddim_spacing"),
-    (lambda d: d | {"first_frame": 1}, "first_frame"),
 ])
 def test_bad_metadata_is_refused(edit, match):
     d = json.loads(PolicyMetadata(preprocess=DepthSpec()).to_json())
@@ -33,11 +32,16 @@ def test_files_from_before_the_spacing_field_read_as_leading():
     assert PolicyMetadata.from_json(json.dumps(d)).ddim_spacing == "leading"
 
 
-def test_the_first_frame_is_one_more_depth_channel_and_older_files_have_none():
-    d = json.loads(PolicyMetadata(preprocess=DepthSpec(), first_frame=True).to_json())
-    assert PolicyMetadata.from_json(json.dumps(d)).input_shapes()["depth"] == [1, 4, 96, 128]
-    del d["first_frame"]
-    assert PolicyMetadata.from_json(json.dumps(d)).input_shapes()["depth"] == [1, 3, 96, 128]
+def test_files_exported_while_first_frame_existed_load_unless_they_set_it():
+    """Files from 2026-11-25 on carry ``first_frame``: false reads as any other file; a first-frame student
+    (4 depth channels) is refused in one line."""
+    d = json.loads(PolicyMetadata(preprocess=DepthSpec()).to_json())
+    assert PolicyMetadata.from_json(json.dumps(d | {"first_frame": False})) == PolicyMetadata.from_json(
+        json.dumps(d))
+    for value in (True, 1):
+        with pytest.raises(MetadataError, match="^first_frame students are no longer supported") as refused:
+            PolicyMetadata.from_json(json.dumps(d | {"first_frame": value}))
+        assert "\n" not in str(refused.value)
 
 
 def test_not_json():

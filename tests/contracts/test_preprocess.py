@@ -122,18 +122,6 @@ def test_frame_stack_fills_then_rolls_oldest_first():
     assert stack.push(d)[:, 0, 0].tolist() == [3, 3, 3]
 
 
-def test_frame_stack_leads_with_the_episodes_first_frame():
-    stack = FrameStack(2, first_frame=True)
-    a, b, c, d = (np.full((2, 2), v, np.float32) for v in range(4))
-    assert stack.push(a)[:, 0, 0].tolist() == [0, 0, 0]
-    stack.push(b)
-    assert stack.push(c)[:, 0, 0].tolist() == [0, 1, 2]
-    stack.reset(keep_first=True)  # a fault within the episode: the history goes, the scene stays
-    assert stack.push(d)[:, 0, 0].tolist() == [0, 3, 3]
-    stack.reset()  # a new episode
-    assert stack.push(d)[:, 0, 0].tolist() == [3, 3, 3]
-
-
 
 def _scene(stream: StreamIntrinsics) -> np.ndarray:
     """One scene seen through ``stream``'s intrinsics, uint16 mm: a tilted table, a box on it (sharp edges)

@@ -90,15 +90,6 @@ def test_check_refuses_a_foreign_checkpoint(untrained_student_onnx, tmp_path):
         run_check(untrained_student_onnx, other, repeats=1, trials=1, threads=1)
 
 
-def test_first_frame_student_exports_one_more_depth_channel(first_frame_student_onnx):
-    """A --first-frame student's graph reads the episode's first frame before the last three."""
-    assert run_check(first_frame_student_onnx, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
-    model = onnx.load(str(first_frame_student_onnx))
-    meta = read_metadata(model)
-    assert meta.first_frame and meta.input_shapes()["depth"] == [1, 4, 96, 128]
-    assert [d.dim_value for d in model.graph.input[0].type.tensor_type.shape.dim] == [1, 4, 96, 128]
-
-
 def _check_cli(*argv: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "export.check", *argv], capture_output=True, text=True,
                           timeout=300, cwd=REPO)

@@ -110,7 +110,7 @@ def test_the_640x480_recording_drives_the_shipped_policy():
     spec = policy.metadata.preprocess
     depth = preprocess(frame.depth, frame.depth_scale, spec)
     assert depth.shape == (spec.out_height, spec.out_width) and (depth == spec.invalid_value).mean() < 0.1
-    stack = FrameStack(policy.metadata.obs_horizon, policy.metadata.first_frame).push(depth)
+    stack = FrameStack(policy.metadata.obs_horizon).push(depth)
     actions = policy(stack, np.zeros(policy.metadata.state_dim, np.float32))
     assert actions.shape == (policy.metadata.action_horizon, 8) and np.isfinite(actions).all()
 

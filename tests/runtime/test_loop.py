@@ -118,8 +118,8 @@ def test_camera_that_comes_back_resumes():
     assert not any(t["hold"] for t in ticks[last:]) and ticks[last]["t_inference"] is not None
 
 
-def test_a_first_frame_policy_keeps_the_scene_through_a_camera_gap():
-    """Its stacks lead with the run's first frame; a hold forgets the recent frames, not that one."""
+def test_a_hold_forgets_the_frame_history_the_gap_made_stale():
+    """After a camera gap the stacks start again from the first new frame, as at an episode's start."""
     class Numbered(FakeCamera):  # each frame's depth says its number; frames 20..24 are lost
         def poll(self, timeout_s):
             frame = super().poll(timeout_s)
@@ -128,11 +128,10 @@ def test_a_first_frame_policy_keeps_the_scene_through_a_camera_gap():
             return dataclasses.replace(frame, depth=np.full_like(frame.depth, 500 + 10 * frame.number))
 
     code, ticks, _, _, _, policy = _run(camera=lambda c: Numbered(c, P), seconds=5.0,
-                                        policy=lambda c: FakePolicy(c, first_frame=True, exec_horizon=1))
+                                        policy=lambda c: FakePolicy(c, exec_horizon=1))
     assert code == EXIT_OK and any(t["hold"] for t in ticks)
-    depths = np.array([d[:, 0, 0] for d in policy.depths])  # [call, 4 frames]
-    assert (depths[:, 0] == depths[0, 0]).all() and depths[0, 0] < depths[-1, -1]
-    restarts = [i for i, d in enumerate(depths) if i and (d[1:] == d[-1]).all()]  # a history of one frame
+    depths = np.array([d[:, 0, 0] for d in policy.depths])  # [call, 3 frames]
+    restarts = [i for i, d in enumerate(depths) if i and (d == d[-1]).all()]  # a history of one frame
     assert len(restarts) == 1 and depths[restarts[0], -1] > depths[restarts[0] - 1, -1]  # after the gap
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
@@ -98,6 +100,16 @@ def test_the_fine_keypoints_attend_over_the_map_of_their_stride(stride, cells):
 def test_bad_config_is_refused(kwargs, match):
     with pytest.raises(StudentConfigError, match=match):
         StudentConfig(**kwargs)
+
+
+def test_checkpoints_from_before_the_retired_options_load_unless_they_used_one():
+    """Configurations saved while first_frame, seen_turn and seen_yaw existed record them: false is dropped,
+    true refused."""
+    saved = json.loads(TINY.to_json())
+    for name in ("first_frame", "seen_turn", "seen_yaw"):
+        assert StudentConfig.from_json(json.dumps(saved | {name: False})) == TINY
+        with pytest.raises(StudentConfigError, match=f"trained with {name} are no longer supported"):
+            StudentConfig.from_json(json.dumps(saved | {name: True}))
 
 
 def test_checkpoint_round_trip_is_weights_only(tmp_path):

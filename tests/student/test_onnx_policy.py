@@ -58,22 +58,6 @@ def test_only_the_frames_an_inference_stacks_are_made_and_the_inputs_are_unchang
         np.testing.assert_array_equal(stack, [normalise(d, 0.001, policy.meta.preprocess) for d in expected])
 
 
-def test_a_first_frame_student_leads_every_stack_with_the_episodes_first_frame(first_frame_student_onnx):
-    policy = make_policy(f"student:{first_frame_student_onnx}")
-    stacks = []
-    inner = policy.runtime.__call__
-    policy.runtime = lambda depth, state: stacks.append(depth.copy()) or inner(depth, state)
-    for episode in range(2):
-        policy.reset({})
-        frames = [observation(np.random.default_rng(10 * episode + i)).depth for i in range(9)]
-        for frame in frames:
-            policy.act(Observation(np.zeros(40, np.float32), frame, np.zeros(8, np.float32)))
-        first = normalise(frames[0], 0.001, policy.meta.preprocess)
-        np.testing.assert_array_equal(stacks[-1][0], first)  # step 8's stack, the first frame's 8 steps old
-        np.testing.assert_array_equal(stacks[-1][-1], normalise(frames[8], 0.001, policy.meta.preprocess))
-    assert len(stacks) == 4 and stacks[-1].shape == (4, 96, 128)
-
-
 def test_an_episode_acts_the_same_whatever_ran_before_it_in_the_process(untrained_student_onnx):
     """Evaluation workers take jobs in no fixed order: an episode's start noise and sensor draws must come
     from its own seed, or the same command measures another success rate each time."""

@@ -2,36 +2,32 @@
 
 from __future__ import annotations
 
-import shutil
-
 import numpy as np
 import pytest
-import zarr
 
 from runtime.preprocess import FrameStack, normalise
 from trainer.dataset import DemoStore
 from trainer.student.data import DemoDataError, DemoDataset
 
 
-def runtime_stacks(store_path, episode: int, first_frame: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def runtime_stacks(store_path, episode: int) -> tuple[np.ndarray, np.ndarray]:
     """Replay one episode the way the runtime sees it: frame by frame through normalise + FrameStack."""
     store = DemoStore.open(store_path)
     ep, attrs = store.episode(episode), store.attrs
-    stack = FrameStack(3, first_frame)
+    stack = FrameStack(3)
     frames = [stack.push(normalise(d, attrs["depth_scale"], store.depth_spec)) for d in ep["depth"]]
     return np.stack(frames), ep["state"]
 
 
-@pytest.mark.parametrize("first_frame", [False, True])
 @pytest.mark.parametrize("episode", [0, 1])
-def test_training_samples_equal_runtime_inputs(tiny_demos, episode, first_frame):
-    data = DemoDataset(tiny_demos, "gt", obs_horizon=3, action_horizon=16, first_frame=first_frame)
-    expected, states = runtime_stacks(tiny_demos, episode, first_frame)
+def test_training_samples_equal_runtime_inputs(tiny_demos, episode):
+    data = DemoDataset(tiny_demos, "gt", obs_horizon=3, action_horizon=16)
+    expected, states = runtime_stacks(tiny_demos, episode)
     first = 0 if episode == 0 else int(data.ends[episode - 1])
     batch = data.batch(np.arange(first, first + len(expected)))
     got = batch.depth.numpy()
     assert got.dtype == expected.dtype == np.float32
-    assert got.shape[1] == 3 + first_frame
+    assert got.shape[1] == 3
     assert np.array_equal(got, expected)  # bit-exact, holes (-1) included
     assert (got == -1).any()
     assert np.array_equal(batch.state.numpy(), states)
@@ -57,26 +53,6 @@ def test_randnoise_changes_frames_but_keeps_the_layout(tiny_demos):
     noisy = DemoDataset(tiny_demos, "randnoise", 3, 16).batch(np.arange(4), np.random.default_rng(0)).depth
     assert noisy.shape == clean.shape and not np.array_equal(noisy.numpy(), clean.numpy())
     assert float(noisy.min()) >= -1.0 and float(noisy.max()) <= 1.0
-
-
-def test_gt_share_draws_each_stack_from_the_clean_or_the_sources_frames(tiny_demos, tmp_path):
-    demos = tmp_path / "demos.zarr"
-    shutil.copytree(tiny_demos, demos)
-    root = zarr.open_group(str(demos), mode="a")
-    clean = np.asarray(root["data/depth"])
-    root.create_array("data/depth_sensor", data=clean // 2 + 100)  # a source unlike the clean frames
-    steps, rng = np.arange(len(clean)), np.random.default_rng(0)
-    gt, sensor = (DemoDataset(demos, s, 3, 16).batch(steps).depth.numpy() for s in ("gt", "sensor"))
-    mixed = DemoDataset(demos, "sensor", 3, 16, gt_share=0.5).batch(steps, rng).depth.numpy()
-    from_gt = [np.array_equal(m, g) for m, g in zip(mixed, gt, strict=True)]
-    from_sensor = [np.array_equal(m, s) for m, s in zip(mixed, sensor, strict=True)]
-    # whole stacks, each from one or the other
-    assert all(a != b for a, b in zip(from_gt, from_sensor, strict=True))
-    assert 0 < sum(from_gt) < len(steps)
-    every = DemoDataset(demos, "sensor", 3, 16, gt_share=1.0).batch(steps, rng).depth.numpy()
-    np.testing.assert_array_equal(every, gt)
-    with pytest.raises(DemoDataError, match="gt_share must be in"):
-        DemoDataset(demos, "sensor", 3, 16, gt_share=1.5)
 
 
 @pytest.mark.parametrize("source, match", [("ddg", "depth_ddg"), ("sharpie", "unknown depth source")])

@@ -13,6 +13,18 @@ class StudentConfigError(ValueError):
     """A student configuration that cannot build a model (bad width, horizon, dims)."""
 
 
+RETIRED = ("first_frame", "seen_turn", "seen_yaw")
+"""Options of past experiments, retired once the recipe beat them (issue 42). Checkpoints written while they
+existed record them, false in all but those experiments' own."""
+
+
+def _drop_retired(d: dict) -> None:
+    """Remove the ``RETIRED`` fields from a saved configuration; one that is set is refused."""
+    if used := [name for name in RETIRED if d.pop(name, False)]:
+        raise StudentConfigError(f"students trained with {', '.join(used)} are no longer supported (retired "
+                                 "in issue 42)")
+
+
 @dataclass(frozen=True)
 class StudentConfig:
     """Defaults vs diffusion_policy (To=2, Ha=16, Hexec=8): we stack 3 depth frames as the paper does,
@@ -24,10 +36,6 @@ class StudentConfig:
     """Learned keypoints of the encoder's spatial-softmax pooling (robomimic / diffusion_policy: 32)."""
     obs_horizon: int = 3
     """Depth frames stacked as input channels, oldest first."""
-    first_frame: bool = False
-    """The episode's first depth frame is stacked before the last ``obs_horizon`` ones: the object as the
-    camera saw it before the hand came near and covered it, which the last 0.3 s cannot recall
-    (docs/student.md "The episode's first frame")."""
     action_horizon: int = 16
     """Ha: actions predicted per inference."""
     exec_horizon: int = 8
@@ -64,20 +72,6 @@ class StudentConfig:
     from the hand, read off the depth image where both are seen (no camera-pose error, unlike the absolute
     position that ``object_offset`` starts from); then part of the exported graph."""
 
-    seen_turn: bool = False
-    """With ``hand_target``: the object head also reads, from depth, the object's yaw relative to the
-    fingers' closing axis (cos and sin of twice it: a grasp turned by pi is the same grasp), and the state
-    encoder reads that estimate; then part of the exported graph. The GT students close on elongated kinds
-    with the fingers ~50 degrees off the expert's direction in their failed grasps (docs/student.md "The
-    wrist's turn")."""
-
-    seen_yaw: bool = False
-    """With ``hand_target`` and ``hand_pose``: the object head also reads, from depth, the object's yaw on the
-    table (cos and sin of twice it), and the state encoder reads that estimate turned into the fingers'
-    frame by the hand pose: the yaw from the fingers that ``seen_turn`` asks of the head itself, which depth
-    cannot show where the fingers are out of view and the wrist may start anywhere (``trainer collect
-    --wrist-noise``). Then part of the exported graph."""
-
     perception: str = ""
     """How the action head learns where the object is. "depth": dense privileged perception
     (``trainer.student.perception``): keypoints at stride 8 supervised to the object's and the hand's pixels
@@ -100,23 +94,13 @@ class StudentConfig:
     under them (each keypoint's attention-weighted depth of the latest frame) and their difference: the
     offset in image terms, where an error of the camera's pose moves both points alike and cancels."""
 
-    @property
-    def depth_channels(self) -> int:
-        """Depth frames in the encoder's input: the last ``obs_horizon``, after the first one if kept."""
-        return self.obs_horizon + self.first_frame
-
-    @property
-    def yaw_target(self) -> str:
-        """The object head's yaw output: "fingers" (``seen_turn``), "table" (``seen_yaw``) or none ("")."""
-        return "fingers" if self.seen_turn else "table" if self.seen_yaw else ""
-
     def __post_init__(self) -> None:
         if self.prediction not in PREDICTIONS:
             raise StudentConfigError(f"prediction must be one of {PREDICTIONS}, got {self.prediction!r}")
         if self.perception not in PERCEPTIONS:
             raise StudentConfigError(f"perception must be one of {PERCEPTIONS}, got {self.perception!r}")
-        earlier = [name for name in ("hand_target", "hand_pose", "object_offset", "seen_offset", "seen_turn",
-                                     "seen_yaw", "first_frame") if getattr(self, name)]
+        earlier = [name for name in ("hand_target", "hand_pose", "object_offset", "seen_offset")
+                   if getattr(self, name)]
         if self.perception and earlier:
             raise StudentConfigError(f"perception={self.perception!r} reads the hand pose and its own facts: "
                                      f"drop {', '.join(earlier)}")
@@ -125,13 +109,6 @@ class StudentConfig:
         if self.fine_keypoints < 2:
             raise StudentConfigError(f"fine_keypoints must be >= 2 (two are supervised), got "
                                      f"{self.fine_keypoints}")
-        if self.seen_turn and self.seen_yaw:
-            raise StudentConfigError("seen_turn and seen_yaw are two ways to read the yaw: choose one")
-        if self.seen_yaw and not (self.hand_target and self.hand_pose):
-            raise StudentConfigError("seen_yaw needs hand_target (the head's outputs before the yaw) and "
-                                     "hand_pose (the fingers' axis it is turned into)")
-        if self.seen_turn and not self.hand_target:
-            raise StudentConfigError("seen_turn needs hand_target (the head's hand-relative outputs)")
         if self.seen_offset and not self.hand_target:
             raise StudentConfigError("seen_offset needs hand_target (the head's offset outputs)")
         if self.object_offset and not self.hand_pose:
@@ -156,6 +133,7 @@ class StudentConfig:
     @classmethod
     def from_json(cls, text: str) -> StudentConfig:
         d = json.loads(text)
+        _drop_retired(d)
         unknown = set(d) - {f.name for f in fields(cls)}
         if unknown:
             raise StudentConfigError(f"unknown student config fields {sorted(unknown)}")

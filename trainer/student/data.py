@@ -53,28 +53,21 @@ class DemoDataset:
 
     def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int,
                  hand_target: bool = False, target_reference: np.ndarray | None = None,
-                 episodes: int = 0, turn: str = "", first_frame: bool = False, gt_share: float = 0.0) -> None:
+                 episodes: int = 0) -> None:
         """``target_reference``: the privileged targets whose mean and std standardise this store's (default:
         its own); a store that only trains the object head is standardised like the training demos.
-        ``episodes``: only the store's first this many (0 = all). ``hand_target``, ``turn``: the privileged
-        targets' columns (``privileged_targets``). ``first_frame``: each stack starts with its episode's first
-        frame (``StudentConfig.first_frame``). ``gt_share``: the share of stacks drawn from the clean depth
-        instead (``FitConfig.gt_share``)."""
+        ``episodes``: only the store's first this many (0 = all). ``hand_target``: the privileged targets'
+        columns (``privileged_targets``)."""
         if depth_source not in DEPTH_SOURCES:
             raise DemoDataError(f"unknown depth source {depth_source!r}; "
                                 f"choose one of {sorted(DEPTH_SOURCES)}")
-        if not 0 <= gt_share <= 1:
-            raise DemoDataError(f"gt_share must be in [0, 1], got {gt_share}")
         store = DemoStore.open(path)
         self.ends = first_episodes(store.episode_ends, episodes, path)
         n = int(self.ends[-1])
-        mixed = gt_share and DEPTH_SOURCES[depth_source] != DEPTH_SOURCES["gt"]
         try:
             self.depth = store.depth(depth_source, n)
         except DatasetError as exc:  # the student's own error: a depth source it cannot train on
             raise DemoDataError(str(exc)) from None
-        self.clean = store.depth("gt", n) if mixed else self.depth
-        self.gt_share = gt_share
         self.state = np.asarray(store.root["data/state"][:n], dtype=np.float32)
         self.action = np.asarray(store.root["data/action"][:n], dtype=np.float32)
         attrs = store.attrs
@@ -84,13 +77,12 @@ class DemoDataset:
         self.control_rate_hz = float(attrs["control_rate_hz"])
         self.depth_source, self.path = depth_source, Path(path)
         self.obs_horizon, self.action_horizon = obs_horizon, action_horizon
-        self.first_frame = first_frame
         self.augment = frame_augmenter(depth_source)
         starts = np.concatenate([[0], self.ends[:-1]])
         steps_per_ep = self.ends - starts
         self._start = np.repeat(starts, steps_per_ep)
         self._end = np.repeat(self.ends, steps_per_ep)
-        self.raw_targets = privileged_targets(store, hand_target, n, turn)
+        self.raw_targets = privileged_targets(store, hand_target, n)
         reference = self.raw_targets if target_reference is None else target_reference
         self.targets = None if self.raw_targets is None else standardise(self.raw_targets, reference)
 
@@ -98,11 +90,9 @@ class DemoDataset:
     def stacked_as(cls, path: str | Path, depth_source: str, policy, spec: DepthSpec | None = None,
                    **kwargs) -> DemoDataset:
         """The store's steps stacked as ``policy`` reads them: its ``StudentConfig`` or its file's
-        ``PolicyMetadata`` (``obs_horizon``, ``first_frame``, ``action_horizon``). ``spec``: the crop and
-        resolution the policy was trained on; a store of other depth is refused (the encoder would run on
-        it)."""
-        data = cls(path, depth_source, policy.obs_horizon, policy.action_horizon,
-                   first_frame=policy.first_frame, **kwargs)
+        ``PolicyMetadata`` (``obs_horizon``, ``action_horizon``). ``spec``: the crop and resolution the policy
+        was trained on; a store of other depth is refused (the encoder would run on it)."""
+        data = cls(path, depth_source, policy.obs_horizon, policy.action_horizon, **kwargs)
         if spec is not None and data.spec != spec:
             raise DemoDataError(f"{path} holds {sizes(data.spec)}; the policy reads {sizes(spec)}")
         return data
@@ -111,19 +101,16 @@ class DemoDataset:
         return len(self.action)
 
     def frame_indices(self, i: int) -> np.ndarray:
-        """Steps of the depth frames stacked at step ``i``, oldest first, clamped to the episode start (which
-        leads them with ``first_frame``)."""
-        recent = np.maximum(np.arange(i - self.obs_horizon + 1, i + 1), self._start[i])
-        return np.r_[self._start[i], recent] if self.first_frame else recent
+        """Steps of the depth frames stacked at step ``i``, oldest first, clamped to the episode start."""
+        return np.maximum(np.arange(i - self.obs_horizon + 1, i + 1), self._start[i])
 
     def action_indices(self, i: int) -> np.ndarray:
         return np.minimum(np.arange(i, i + self.action_horizon), self._end[i] - 1)
 
     def depth_stack(self, i: int, rng: np.random.Generator | None = None) -> np.ndarray:
-        rng = rng if rng is not None else np.random.default_rng()
-        clean = self.gt_share > 0 and rng.random() < self.gt_share  # draws nothing unless mixing
-        frames = (self.clean if clean else self.depth)[self.frame_indices(i)]
-        if self.augment is not None and not clean:
+        frames = self.depth[self.frame_indices(i)]
+        if self.augment is not None:
+            rng = rng if rng is not None else np.random.default_rng()
             frames = np.stack([self.augment(f, rng) for f in frames])
         return np.stack([normalise(f, self.depth_scale, self.spec) for f in frames])
 
@@ -134,22 +121,13 @@ class DemoDataset:
         return Batch(torch.from_numpy(depth), torch.from_numpy(self.state[indices]), torch.from_numpy(action),
                      targets)
 
-    def keyframe_weights(self, weight: float) -> np.ndarray:
-        """Per step, 1 + ``weight`` x how far the expert's action moved from the previous step's (largest
-        joint, actions in [-1, 1]; at an episode's start from rest, zero): the error of a copycat that
-        repeats its last action, large where the expert decides something (which way to turn, when to
-        close) and small where the history alone predicts it (Wen et al. 2021, keyframe-focused imitation)."""
-        previous = np.roll(self.action, 1, axis=0)
-        previous[self._start == np.arange(len(self))] = 0
-        return 1 + weight * np.abs(self.action - previous).max(axis=1)
-
     def fingerprint(self) -> dict:
         """Identifies the training data in the policy file's metadata."""
         h = hashlib.sha256()
         for arr in (self.ends, self.state, self.action):
             h.update(np.ascontiguousarray(arr).tobytes())
         return {"demos": str(self.path.resolve()), "depth_source": self.depth_source,
-                "gt_share": self.gt_share, "episodes": len(self.ends), "steps": len(self),
+                "episodes": len(self.ends), "steps": len(self),
                 "demos_sha256": h.hexdigest()[:16]}
 
 
@@ -165,10 +143,10 @@ def first_episodes(ends: np.ndarray, episodes: int, path: str | Path) -> np.ndar
 def object_positions(store: DemoStore) -> np.ndarray | None:
     """Per step [N, 2], metres: where the step's object was placed (``object_xy`` of the episode's recorded
     randomisation), or None if an episode does not record it."""
-    return _per_step(store, "object_xy", 2)
+    return per_step(store, "object_xy", 2)
 
 
-def _per_step(store: DemoStore, key: str, width: int) -> np.ndarray | None:
+def per_step(store: DemoStore, key: str, width: int) -> np.ndarray | None:
     """The episodes' recorded randomisation ``key`` repeated over their steps [N, width], or None if an
     episode does not record it."""
     draws = [json.loads(str(r)) for r in store.root["meta/randomisation"][:]]
@@ -178,17 +156,12 @@ def _per_step(store: DemoStore, key: str, width: int) -> np.ndarray | None:
     return np.repeat(per_episode, store.episode_lengths, axis=0)
 
 
-def privileged_targets(store: DemoStore, hand_target: bool, steps: int | None = None,
-                       turn: str = "") -> np.ndarray | None:
+def privileged_targets(store: DemoStore, hand_target: bool, steps: int | None = None) -> np.ndarray | None:
     """Per step [N, 2], metres: the object's table position (``object_positions``); with ``hand_target``
     [N, 5]: then the hand relative to it, from the recorded joint state by forward kinematics (object minus
     grasp site in x and y, and the grasp site's height above the table), which decides where to move and
-    when to close; with ``turn`` (and ``hand_target``) [N, 7]: then the object's placed yaw, "table" as it
-    lies or "fingers" relative to the fingers' closing axis, as cos and sin of twice the angle (a grasp
-    turned by pi is the same grasp). None if an episode does not record the object's position. ``steps``:
-    the first this many steps only."""
-    if turn not in ("", "table", "fingers"):
-        raise ValueError(f"turn must be '', 'table' or 'fingers', got {turn!r}")
+    when to close. None if an episode does not record the object's position. ``steps``: the first this many
+    steps only."""
     placed = object_positions(store)
     if placed is None:
         return None
@@ -197,24 +170,14 @@ def privileged_targets(store: DemoStore, hand_target: bool, steps: int | None = 
         return placed
     kinematics = ArmKinematics()
     state = np.asarray(store.root["data/state"][: len(placed)], dtype=np.float64)
-    sites = [kinematics.site(np.r_[q[:7], 0.0, 0.0]) for q in state]  # fingers: no effect
-    hand = np.array([pos for pos, _ in sites])
-    columns = [placed, placed - hand[:, :2], hand[:, 2] - TABLE_Z]
-    if turn:
-        yaw = _per_step(store, "object_yaw", 1)
-        if yaw is None:
-            raise DemoDataError(f"an episode of the demos records no object_yaw, which the {turn} yaw learns")
-        doubled = 2 * yaw[: len(placed), 0]
-        if turn == "fingers":
-            doubled -= 2 * np.array([np.arctan2(rot[1, 1], rot[0, 1]) for _, rot in sites])  # closing axis: y
-        columns += [np.cos(doubled), np.sin(doubled)]
-    return np.column_stack(columns).astype(np.float32)
+    hand = np.array([kinematics.site(np.r_[q[:7], 0.0, 0.0])[0] for q in state])  # fingers: no effect
+    return np.column_stack([placed, placed - hand[:, :2], hand[:, 2] - TABLE_Z]).astype(np.float32)
 
 
-def training_targets(data: dict, hand_target: bool, turn: str = "") -> np.ndarray | None:
+def training_targets(data: dict, hand_target: bool) -> np.ndarray | None:
     """``privileged_targets`` of the demos a checkpoint was trained on (its ``info.data`` fingerprint): the
     reference its object head's units are standardised over."""
-    return privileged_targets(DemoStore.open(data["demos"]), hand_target, data.get("steps"), turn)
+    return privileged_targets(DemoStore.open(data["demos"]), hand_target, data.get("steps"))
 
 
 def column_scale(reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

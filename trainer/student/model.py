@@ -96,15 +96,15 @@ class ConditionalUnet1d(nn.Module):
 
 def state_inputs(config: StudentConfig) -> int:
     """Width of the state MLP's input: the state, the hand pose (9) and the object's offset from it (2 for
-    each of ``object_offset`` and ``seen_offset``, and the yaw reading of ``seen_turn`` or ``seen_yaw``)."""
-    readings = config.object_offset + config.seen_offset + bool(config.yaw_target)
+    each of ``object_offset`` and ``seen_offset``)."""
+    readings = config.object_offset + config.seen_offset
     return config.state_dim + HAND_FEATURES * config.hand_pose + 2 * readings
 
 
 def object_outputs(config: StudentConfig) -> int:
     """Outputs of the object head: the object's table position (2), then with ``hand_target`` the hand
-    relative to it (3), then with ``seen_turn`` or ``seen_yaw`` the object's yaw (2: ``yaw_target``)."""
-    return 2 + 3 * config.hand_target + 2 * bool(config.yaw_target)
+    relative to it (3)."""
+    return 2 + 3 * config.hand_target
 
 
 def into_fingers(doubled_yaw: torch.Tensor, hand: torch.Tensor) -> torch.Tensor:
@@ -140,17 +140,14 @@ class StudentPolicy(nn.Module):
         """The object head's units (standardised table position) -> metres: centre = mean, half_range = std
         of the training demos' object positions, as ``trainer.student.data.standardise``."""
         self.offset_norm = RangeNormaliser(2) if config.object_offset else None
-        self.yaw_norm = RangeNormaliser(2) if config.seen_yaw else None
-        """``seen_yaw``: the object head's yaw units -> cos and sin of twice the yaw, as ``object_norm``."""
-        self.encoder = ResNet18(config.depth_channels, config.width, config.keypoints)
+        self.encoder = ResNet18(config.obs_horizon, config.width, config.keypoints)
         self.state_mlp = nn.Sequential(nn.Linear(state_inputs(config), config.state_features),
                                        nn.ReLU(), nn.Linear(config.state_features, config.state_features))
         obs_dim = self.encoder.out_features + config.state_features
         self.head = ConditionalUnet1d(config.action_dim, obs_dim, config.head_dims, config.step_features)
         self.object_head = nn.Linear(self.encoder.out_features, object_outputs(config))
         """Training only unless a state input reads it: the object's table position from the depth features,
-        then (``hand_target``) the hand's offset from it, then (``seen_turn``, ``seen_yaw``) the object's
-        yaw (``trainer.student.data.privileged_targets``)."""
+        then (``hand_target``) the hand's offset from it (``trainer.student.data.privileged_targets``)."""
 
     def encode(self, depth: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """Preprocessed depth [B, To, H, W] + raw state [B, S] -> observation feature [B, F]."""
@@ -162,14 +159,12 @@ class StudentPolicy(nn.Module):
     def state_input(self, depth_features: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """The state MLP's input: the normalised state, then (``hand_pose``) the normalised hand pose, then
         (``object_offset``) the normalised offset of the object head's estimate from the hand, then
-        (``seen_offset``) the object head's own reading of that offset, then (``seen_turn``) its reading of
-        the object's yaw relative to the fingers, both in its standardised units, or (``seen_yaw``) its
-        reading of the object's yaw on the table turned into the fingers' frame (cos, sin of twice it)."""
+        (``seen_offset``) the object head's own reading of that offset, in its standardised units."""
         parts = [self.state_norm.normalise(state)]
         if self.config.hand_pose:
             hand = hand_pose(state)
             parts.append(self.hand_norm.normalise(hand))
-        if not (self.config.object_offset or self.config.seen_offset or self.config.yaw_target):
+        if not (self.config.object_offset or self.config.seen_offset):
             return torch.cat(parts, dim=-1)
         estimate = self.object_head(depth_features)
         if self.config.object_offset:
@@ -178,17 +173,13 @@ class StudentPolicy(nn.Module):
             parts.append(self.offset_norm.normalise(located - hand[:, :2]))
         if self.config.seen_offset:
             parts.append(estimate[:, 2:4])
-        if self.config.seen_turn:
-            parts.append(estimate[:, 5:7])
-        if self.config.seen_yaw:
-            parts.append(into_fingers(self.yaw_norm.unnormalise(estimate[:, 5:7]), hand))
         return torch.cat(parts, dim=-1)
 
     def fit_normalisers(self, state: np.ndarray, action: np.ndarray,
                         targets: np.ndarray | None = None) -> None:
         """Statistics of the training demos: min-max of states, actions and (``hand_pose``) hand poses;
         with ``object_offset`` also the object positions (``targets`` [N, 2+], the privileged targets: mean,
-        std) and their offsets from the hand (min-max); with ``seen_yaw`` the yaw columns' mean and std."""
+        std) and their offsets from the hand (min-max)."""
         self.state_norm.fit(state.min(0), state.max(0))
         self.action_norm.fit(action.min(0), action.max(0))
         if not self.config.hand_pose:
@@ -196,17 +187,15 @@ class StudentPolicy(nn.Module):
         with torch.no_grad():
             hands = hand_pose(torch.from_numpy(np.asarray(state, np.float32))).numpy()
         self.hand_norm.fit(hands.min(0), hands.max(0))
-        if (self.config.object_offset or self.config.seen_yaw) and targets is None:
-            raise ValueError("object_offset and seen_yaw need the demos' privileged targets")
-        if self.config.seen_yaw:
-            mean, std = column_scale(targets[:, 5:7])
-            self.yaw_norm.fit(mean - std, mean + std)
-        if self.config.object_offset:
-            objects = targets[:, :2]
-            mean, std = column_scale(objects)
-            self.object_norm.fit(mean - std, mean + std)
-            offsets = objects - hands[:, :2]
-            self.offset_norm.fit(offsets.min(0), offsets.max(0))
+        if not self.config.object_offset:
+            return
+        if targets is None:
+            raise ValueError("object_offset needs the demos' privileged targets")
+        objects = targets[:, :2]
+        mean, std = column_scale(objects)
+        self.object_norm.fit(mean - std, mean + std)
+        offsets = objects - hands[:, :2]
+        self.offset_norm.fit(offsets.min(0), offsets.max(0))
 
     def forward(self, noisy_actions: torch.Tensor, steps: torch.Tensor, obs: torch.Tensor) -> torch.Tensor:
         return self.head(noisy_actions, steps, obs)
@@ -228,7 +217,7 @@ class PerceptionStudent(nn.Module):
         self.label_norm = RangeNormaliser(READOUT)
         """Facts in metres -> standardised units: centre = mean, half_range = std over the training steps."""
         depth = config.perception == "depth"
-        self.perception = (Perception(config.depth_channels, config.width, config.keypoints,
+        self.perception = (Perception(config.obs_horizon, config.width, config.keypoints,
                                       config.fine_keypoints, config.fine_stride, config.geometric)
                            if depth else None)
         features = self.perception.out_features if depth and config.head_features else 0

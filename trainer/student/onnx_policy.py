@@ -24,7 +24,7 @@ class StudentOnnxPolicy:
     def __init__(self, path: str | Path, seed: int = 0) -> None:
         self.runtime = RuntimePolicy(path, seed=seed)
         self.meta = self.runtime.metadata
-        self.frames = FrameStack(self.meta.obs_horizon, self.meta.first_frame)
+        self.frames = FrameStack(self.meta.obs_horizon)
         self.queue: deque[np.ndarray] = deque()
 
     def reset(self, env_info: dict | None = None) -> None:

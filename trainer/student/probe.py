@@ -60,24 +60,15 @@ def probe(policy_path: str, demos: str, depth_source: str, every: int) -> dict:
             "gripper_sign_agreement": float(np.mean(gripper_ok))}
 
 
-def yaw_error_deg(guess: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """Per row of two [N, 2] (cos, sin) of twice a yaw: the angle between the doubled directions, halved back
-    (degrees, modulo 180: a grasp turned by pi is the same grasp)."""
-    doubled = np.arctan2(guess[:, 1], guess[:, 0]) - np.arctan2(truth[:, 1], truth[:, 0])
-    return np.degrees(np.abs(np.angle(np.exp(1j * doubled)))) / 2
-
-
 def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     """The object head's error on ``demos`` (cm), against predicting the training demos' mean position; for
-    a head with the hand target also the error of the hand's offset from the object, and with a yaw output
-    of the object's yaw as the head reads it (``yaw_target``; degrees, modulo pi)."""
+    a head with the hand target also the error of the hand's offset from the object."""
     ckpt = checkpoint.load(Path(ckpt_path))
     if "demos" not in ckpt.info.data:
         raise DemoDataError(f"{ckpt_path} records no training demos (an untrained checkpoint?)")
-    hand, turn = ckpt.config.hand_target, ckpt.config.yaw_target
-    trained_on = training_targets(ckpt.info.data, hand, turn)
-    store = DemoStore.open(demos)
-    probed = privileged_targets(store, hand, turn=turn)
+    hand = ckpt.config.hand_target
+    trained_on = training_targets(ckpt.info.data, hand)
+    probed = privileged_targets(DemoStore.open(demos), hand)
     if trained_on is None or probed is None:
         raise DemoDataError("object positions are not recorded in the training or the probed demos")
     data = DemoDataset.stacked_as(demos, depth_source, ckpt.config, ckpt.info.depth_spec)
@@ -93,12 +84,6 @@ def locate(ckpt_path: str, demos: str, depth_source: str, every: int) -> dict:
     if hand:
         hand_err = np.linalg.norm(predicted[:, 2:5] - probed[steps, 2:5], axis=1) * 100
         result["hand_offset_err_cm"] = {"median": float(np.median(hand_err)), "mean": float(hand_err.mean())}
-    if turn:  # by kind: the round ones have no yaw to read
-        turn_err = yaw_error_deg(predicted[:, 5:7], probed[steps, 5:7])
-        kinds = np.repeat(store.kinds, store.episode_lengths)[steps]
-        result["turn_err_deg"] = {"median": float(np.median(turn_err)), "mean": float(turn_err.mean()),
-                                  "median_by_kind": {k: float(np.median(turn_err[kinds == k]))
-                                                     for k in sorted(set(kinds))}}
     return result
 
 

@@ -13,7 +13,6 @@ import os
 import resource
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -49,9 +48,6 @@ class FitConfig:
     """Run folder: ckpt.pt (resumed if present), loss.png, summary.json."""
     depth_source: str = "gt"
     """Depth the student sees: gt | randnoise | ddg | ddg_nograft | sensor (what `collect --sensor` kept)."""
-    gt_share: float = 0.0
-    """Share of the samples whose frames are the store's clean (GT) depth instead of ``depth_source``'s,
-    drawn per sample: a fine-tune on DDG depth that keeps seeing exact depth too (0 = the source alone)."""
     episodes: int = 0
     """Train on the store's first this many episodes (0 = all): e.g. those whose DDG depth is generated
     while `trainer ddg generate` is still working through the rest."""
@@ -71,17 +67,14 @@ class FitConfig:
     object_demos: str = ""
     """A second demo store whose frames train only the object head (with weight ``object_loss``), never the
     actions. Half a batch of them is drawn per step."""
-    keyframe_weight: float = 0.0
-    """Draw steps where the expert's action changes more often than the others: step i with probability
-    proportional to 1 + this x the change (``DemoDataset.keyframe_weights``), so the few steps that decide
-    a turn are not drowned by the many a copy of the last action explains. 0 = every step alike."""
     ema_max: float = 0.9999
     """Ceiling of the EMA decay; the decay ramps up as 1 - (1 + step)^-0.75 (diffusion_policy)."""
     ckpt_every: int = 500
     """Steps between checkpoints (also written at the end)."""
     init: str = ""
     """Start a new run from this checkpoint's EMA weights and normalisers instead of random ones (e.g. the
-    GT-depth student, fine-tuned on DDG depth); the step count, optimiser and LR schedule start afresh."""
+    GT-depth student, fine-tuned on DDG depth); the model options must be the checkpoint's. The step count,
+    optimiser and LR schedule start afresh."""
     seed: int = 0
     threads: int = 0
     """torch intra-op threads per process (0 = torch's default)."""
@@ -89,12 +82,8 @@ class FitConfig:
     def __post_init__(self) -> None:
         if self.depth_source not in DEPTH_SOURCES:
             raise FitError(f"--depth-source {self.depth_source!r}: choose one of {sorted(DEPTH_SOURCES)}")
-        if not 0 <= self.gt_share <= 1:
-            raise FitError(f"--gt-share must be in [0, 1], got {self.gt_share}")
         if self.episodes < 0:
             raise FitError(f"--episodes must be >= 0 (0 = all), got {self.episodes}")
-        if self.keyframe_weight < 0:
-            raise FitError(f"--keyframe-weight must be >= 0 (0 = uniform), got {self.keyframe_weight}")
         for name in ("steps", "batch", "ckpt_every"):
             if getattr(self, name) < 1:
                 raise FitError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
@@ -140,19 +129,10 @@ def object_frames(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset) -
     if not cfg.object_loss:
         raise FitError("--object-demos trains the object head: it needs --object-loss > 0")
     extra = DemoDataset.stacked_as(cfg.object_demos, cfg.depth_source, model_cfg, data.spec,
-                                   hand_target=model_cfg.hand_target, target_reference=data.raw_targets,
-                                   turn=model_cfg.yaw_target)
+                                   hand_target=model_cfg.hand_target, target_reference=data.raw_targets)
     if extra.targets is None:
         raise FitError(f"{cfg.object_demos} does not record object_xy for every episode")
     return extra
-
-
-def step_sampler(data: DemoDataset, keyframe_weight: float) -> Callable[..., np.ndarray]:
-    """(rng, n) -> n step indices of ``data``: uniform, or drawn by ``DemoDataset.keyframe_weights``."""
-    if not keyframe_weight:
-        return lambda rng, n: rng.integers(0, len(data), n)
-    cumulative = np.cumsum(data.keyframe_weights(keyframe_weight))
-    return lambda rng, n: np.searchsorted(cumulative, rng.random(n) * cumulative[-1], side="right")
 
 
 def ema_update(ema: dict[str, torch.Tensor], model: nn.Module, step: int, ema_max: float) -> None:
@@ -181,8 +161,8 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
         ckpt = checkpoint.load(path)
         if ckpt.config != model_cfg:
             raise FitError(f"{path} was trained with {ckpt.config}, not {model_cfg}; use another --out")
-        for key, before in (("demos_sha256", None), ("depth_source", None), ("gt_share", 0.0)):
-            trained_on = ckpt.info.data.get(key, before)  # runs from before --gt-share record none
+        for key in ("demos_sha256", "depth_source"):
+            trained_on = ckpt.info.data.get(key)
             if trained_on != fingerprint[key]:
                 raise FitError(f"{path} was trained on other data ({key} {trained_on!r}, "
                                f"not {fingerprint[key]!r}); use another --out")
@@ -202,60 +182,18 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
 
 
 def warm_start(init: Path, model_cfg: StudentConfig, info: TrainingInfo, data: DemoDataset) -> Checkpoint:
-    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights. A student may gain the
-    state inputs of ``STATE_INPUT_OPTIONS`` on the way (``with_state_inputs``), not lose them, and may read
-    fewer frames (``with_fewer_frames``)."""
+    """A new run whose weights, EMA and normalisers are ``init``'s EMA weights (a student of the same
+    configuration)."""
     source = checkpoint.load(init)
-    added = {name for name in STATE_INPUT_OPTIONS if getattr(model_cfg, name) != getattr(source.config, name)}
-    changed = {name: getattr(model_cfg, name) for name in (*added, "obs_horizon")}
-    if (replace(source.config, **changed) != model_cfg or any(getattr(source.config, name) for name in added)
-            or model_cfg.obs_horizon > source.config.obs_horizon):
+    if source.config != model_cfg:
         raise FitError(f"--init {init} is a {source.config}, not the requested {model_cfg}")
     if source.info.depth_spec != data.spec:
         raise FitError(f"--init {init} was trained on {sizes(source.info.depth_spec)}; {data.path} holds "
                        f"{sizes(data.spec)}")
     info = replace(info, data={**info.data, "init": str(init.resolve()),
                                "init_sha256": checkpoint.sha256(init)})
-    weights = with_state_inputs(source.ema, model_cfg, data) if added else source.ema
-    if model_cfg.obs_horizon < source.config.obs_horizon:
-        weights = with_fewer_frames(weights, model_cfg.obs_horizon)
-    return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in weights.items()},
-                      model={k: v.clone() for k, v in weights.items()})
-
-
-STATE_INPUT_OPTIONS = ("hand_pose", "object_offset", "seen_turn", "seen_yaw")
-
-
-def with_state_inputs(weights: dict[str, torch.Tensor], model_cfg: StudentConfig,
-                      data: DemoDataset) -> dict[str, torch.Tensor]:
-    """The weights of a student with more state inputs (``STATE_INPUT_OPTIONS``) from one with fewer: the
-    state MLP's first layer gets zero weights for the new inputs, so the network starts as the same
-    function; new object-head outputs (``seen_turn``) start from the fresh network's weights; the new
-    normalisers are fitted to ``data``."""
-    net = StudentPolicy(model_cfg)
-    fit_to_demos(net, data)
-    fresh = net.state_dict()
-    first = "state_mlp.0.weight"
-    new_inputs = fresh[first].shape[1] - weights[first].shape[1]
-    widened = {first: torch.cat([weights[first], torch.zeros(weights[first].shape[0], new_inputs)], dim=1)}
-    for name in ("object_head.weight", "object_head.bias"):
-        kept = weights[name].shape[0]
-        widened[name] = torch.cat([weights[name], fresh[name][kept:]])
-    return {**fresh, **weights, **widened}
-
-
-STEM = "encoder.stem.0.weight"
-"""The encoder's first convolution: one input channel per stacked depth frame, oldest first."""
-
-
-def with_fewer_frames(weights: dict[str, torch.Tensor], frames: int) -> dict[str, torch.Tensor]:
-    """The weights of a student that reads the last ``frames`` depth frames from one that read more: the
-    dropped (older) frames' first-layer weights are added to the oldest kept frame's, so on a still scene
-    (every frame alike, as at an episode's start) the network computes what the source did."""
-    first = weights[STEM]
-    kept = first[:, -frames:].clone()
-    kept[:, 0] += first[:, :-frames].sum(dim=1)
-    return {**weights, STEM: kept}
+    return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in source.ema.items()},
+                      model={k: v.clone() for k, v in source.ema.items()})
 
 
 def fit_to_demos(net: StudentPolicy, data: DemoDataset) -> None:
@@ -288,10 +226,10 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
     if cfg.batch % world:
         raise FitError(f"--batch {cfg.batch} must be divisible by the {world} torchrun processes")
     data = DemoDataset.stacked_as(cfg.demos, cfg.depth_source, model_cfg, hand_target=model_cfg.hand_target,
-                                  episodes=cfg.episodes, turn=model_cfg.yaw_target, gt_share=cfg.gt_share)
-    if (model_cfg.object_offset or model_cfg.seen_offset or model_cfg.yaw_target) and not cfg.object_loss:
-        raise FitError("--object-offset, --seen-offset, --seen-turn and --seen-yaw read the object head's "
-                       "estimate: they need --object-loss > 0")
+                                  episodes=cfg.episodes)
+    if (model_cfg.object_offset or model_cfg.seen_offset) and not cfg.object_loss:
+        raise FitError("--object-offset and --seen-offset read the object head's estimate: they need "
+                       "--object-loss > 0")
     if cfg.object_loss and data.targets is None:
         raise FitError(f"{cfg.demos} does not record object_xy for every episode; train with --object-loss 0")
     extra = object_frames(cfg, model_cfg, data)
@@ -310,12 +248,11 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
     rng, gen = np.random.default_rng(seed), torch.Generator().manual_seed(seed)
     start, started = ckpt.step, time.perf_counter()
     extra_batch = max(1, cfg.batch // world // 2)
-    draw = step_sampler(data, cfg.keyframe_weight)
     bar = tqdm(range(start, cfg.steps), initial=start, total=cfg.steps, disable=rank != 0, desc="student fit")
     for step in bar:
         for group in optim.param_groups:
             group["lr"] = cfg.lr * lr_factor(step, cfg)
-        batch = data.batch(draw(rng, cfg.batch // world), rng)
+        batch = data.batch(rng.integers(0, len(data), cfg.batch // world), rng)
         seen_only = None if extra is None else extra.batch(rng.integers(0, len(extra), extra_batch), rng)
         loss, denoising = trainable(batch, gen, seen_only)
         optim.zero_grad(set_to_none=True)
