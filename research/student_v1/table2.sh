@@ -8,15 +8,14 @@
 #   research/student_v1/table2.sh key [NAME...]  rows at 180 episodes per cell (30 per kind, as issue 7 asks; default
 #                                       gt, ddg, ddg_b) -> runs/table2/key; `table` prefers these cells
 #   research/student_v1/table2.sh reactive   a GT student on demos of the phase-free (reactive) expert, and its cells
-#   research/student_v1/table2.sh dagger     the hand-target GT student, recovery demos where it drives, the students
-#                                       fine-tuned on them (and the same budget without them), and their cells
+#   research/student_v1/table2.sh dagger     the hand-target GT student, 8000 more steps of it, their clean cells and its
+#                                       DDG fine-tune
 #   research/student_v1/table2.sh dart       DART demos (noisy execution, clean labels), a GT student fine-tuned on them
 #                                       beside one on the scripted demos alone, and their clean cells
-#   research/student_v1/table2.sh looking    more scripted demos, and the object head also on a student's recovery frames,
-#                                       each fine-tuned like `dart`, and their clean cells
+#   research/student_v1/table2.sh looking    more scripted demos, a GT student fine-tuned on them like `dart`, its clean cells
 #   research/student_v1/table2.sh handpose   the oracle (perfect perception, same head) with and without the hand's pose,
-#                                       then GT students given the hand's pose (and the object's offset from it),
-#                                       each fine-tuned like `dart`, and their clean cells
+#                                       then a GT student given the hand's pose and the object's offset from it,
+#                                       from scratch and fine-tuned further, and their clean cells
 #   research/student_v1/table2.sh moredata   the hand-pose students on 3000 demos, from scratch, and their measures
 #   research/student_v1/table2.sh sixk       the best of those on 6000 demos, and its measures
 #   research/student_v1/table2.sh ddgb6k     the best GT student (6000 demos) fine-tuned on DDG (b) depth (8000 steps,
@@ -36,9 +35,12 @@
 #   research/student_v1/table2.sh ddga192 [N]  `ddga6k`'s fine-tunes on DDG (a) depth of N (default 1000) demos at
 #                                       192x144, from `finer`'s student, and its cells under both sensors
 #   research/student_v1/table2.sh ddga192_short  its first 8000 steps alone, under both sensors
-#   research/student_v1/table2.sh mix192 [SHARE]  those 8000 steps with SHARE (default 0.5) of the samples on clean depth
 #   research/student_v1/table2.sh ddg_b      DDG variant (b)'s student: the demos' depth through models/ddg_stereo, then
 #                                       the `train` fine-tune on it (after train.sh steps 1-2)
+# The stages of the options retired in issue 42 (recovery demos of `trainer collect --teacher takeover:S.onnx`,
+# --seen-turn, --seen-yaw, --first-frame, --keyframe-weight, --gt-share, an --init that adds state inputs or drops
+# frames) are gone, with those parts of dagger, looking, handpose and wrist: `git show
+# 6ec6cdf:research/student_v1/table2.sh` prints them as they ran.
 # Stereo cells are of the sensor in hil_sim/stereo_params.json (second version, textured); the first version's
 # cells are kept in runs/table2_v1 and docs/table2_v1.json.
 # Budget: the GT student of train.sh step 2, fine-tuned 8000 steps at lr 1e-4 on each source's depth of the
@@ -80,8 +82,8 @@ STUDENTS=("gt runs/student/gt_1000_obj1.onnx none"
           "randnoise runs/student/randnoise_ft_8k.onnx none"
           "ddg_nograft runs/student/ddg_nograft_ft_8k.onnx none"
           "ddg2_ft_20k runs/student/ddg2_ft_20k.onnx none"  # the ddg student at 20000 steps (shipped until 2026-11-25)
-          "gt_hand runs/student/gt_hand_more_8k.onnx none"  # `dagger` step 3, without the recovery demos
-          "ddg_hand runs/student/ddg_hand_8k.onnx none"  # `dagger` step 4
+          "gt_hand runs/student/gt_hand_more_8k.onnx none"  # `dagger` step 2
+          "ddg_hand runs/student/ddg_hand_8k.onnx none"  # `dagger` step 3
           "ddg_b runs/student/ddg_b_ft_8k.onnx none"  # `ddg_b`: DDG (b), trained on the stereo sensor's frames
           # `moredata`: the best GT student so far (3000 demos, hand pose, seen offset, 48000 steps); `key` names it
           "gt3k_hpos_more_12k_x4 runs/student/gt3k_hpos_more_12k_x4.onnx none"
@@ -193,21 +195,13 @@ fit() {  # out demos depth-source threads steps [more fit flags]: the GT student
 dagger() {
     # 1. The GT student of train.sh step 2's first 16000 steps, its object head also reading the hand's offset.
     fit gt_hand_16k runs/sim/demos_seen.zarr gt 2 16000 --lr 3e-4
-    # 2. Recovery demos: it drives to a seeded step in [5, 50), the reactive expert finishes; 800 successful
-    #    episodes (seeds 61002..) appended to a copy of the 1000 scripted demos.
-    [ -d runs/sim/demos_seen_takeover.zarr ] || cp -r runs/sim/demos_seen.zarr runs/sim/demos_seen_takeover.zarr
-    python -m trainer collect --teacher takeover:runs/student/gt_hand_16k.onnx --episodes 1800 --seed 60000 \
-        --workers 2 --out runs/sim/demos_seen_takeover.zarr
-    # 3. 8000 more steps from it (lr 1e-4, as the table's fine-tunes) with and without the recovery demos, side by side.
-    fit gt_hand_takeover_8k runs/sim/demos_seen_takeover.zarr gt 1 8000 --lr 1e-4 \
-        --init runs/student/gt_hand_16k/ckpt.pt &
+    # 2. 8000 more steps from it (lr 1e-4, as the table's fine-tunes); the recovery demos it was run beside are retired.
     fit gt_hand_more_8k runs/sim/demos_seen.zarr gt 1 8000 --lr 1e-4 --init runs/student/gt_hand_16k/ckpt.pt
-    wait
-    for name in gt_hand_16k gt_hand_takeover_8k gt_hand_more_8k; do
+    for name in gt_hand_16k gt_hand_more_8k; do
         cell "$name" "runs/student/$name.onnx" none clean seen 200
     done
-    # 4. The better of the two (without recovery demos) fine-tuned on the DDG depth of the 1000 demos, as `train`;
-    #    its cells and gt_hand's (the same file as gt_hand_more_8k) come from `evaluate`.
+    # 3. It fine-tuned on the DDG depth of the 1000 demos, as `train`; its cells and gt_hand's (the same file as
+    #    gt_hand_more_8k) come from `evaluate`.
     fit ddg_hand_8k runs/sim/demos_seen.zarr ddg 1 8000 --lr 1e-4 --init runs/student/gt_hand_more_8k/ckpt.pt
 }
 
@@ -229,26 +223,20 @@ dart() {
 }
 
 looking() {
-    # docs/student.md@b8caf57 "The hand strays on the way down": 2000 more scripted demos (seeds 31002..) beside the 1000, and
-    # the object head also trained on the frames of 600 recovery episodes of gt_more_8k (the student drives to a
-    # seeded step, the reactive expert finishes; seeds 40000..); each the `dart` budget, against gt_more_8k.
+    # docs/student.md@b8caf57 "The hand strays on the way down": 2000 more scripted demos (seeds 31002..) beside the 1000,
+    # the `dart` budget, against gt_more_8k (the object head on recovery frames, run beside it, is retired)
     demos_3k
-    python -m trainer collect --teacher takeover:runs/student/gt_more_8k.onnx --episodes 600 --seed 40000 \
-        --workers 1 --out runs/sim/takeover_gt_more_8k.zarr
-    finetune gt_3k_8k runs/sim/demos_seen_3k.zarr gt 1 &
-    finetune gt_lookfr_8k runs/sim/demos_seen.zarr gt 1 --object-demos runs/sim/takeover_gt_more_8k.zarr
-    wait
+    finetune gt_3k_8k runs/sim/demos_seen_3k.zarr gt 1
     for objects in seen unseen; do
-        for name in gt_3k_8k gt_lookfr_8k; do
-            WORKERS=1 cell "$name" "runs/student/$name.onnx" none clean "$objects" 180 runs/table2/key
-        done
+        WORKERS=1 cell gt_3k_8k runs/student/gt_3k_8k.onnx none clean "$objects" 180 runs/table2/key
     done
 }
 
 handpose() {
     # docs/student.md@b8caf57 "The oracle": research/student_v1/oracle.py (60 episodes, execute 8 and 4 of each chunk), then
-    # the hand's pose by forward kinematics (and the object head's offset from it) as state inputs of the GT
-    # student, each the `dart` budget from gt_1000_obj1, against gt_more_8k.
+    # the hand's pose by forward kinematics and the object head's offset from it as state inputs of the GT student,
+    # against gt_more_8k (its first try, the `dart` budget from gt_1000_obj1, needed the retired --init that adds
+    # state inputs).
     local run exec
     for run in "facts_8k" "hand_8k --hand" "facts_24k --steps 24000" "hand_24k --hand --steps 24000"; do
         set -- $run
@@ -261,17 +249,14 @@ handpose() {
         python research/student_v1/oracle.py evaluate runs/student/oracle/hand_24k/oracle.pt --episodes 60 --exec 4 \
             --facts-noise-cm "$noise"
     done
-    finetune gt_hp_8k runs/sim/demos_seen.zarr gt 1 --hand-pose &
-    finetune gt_hpo_8k runs/sim/demos_seen.zarr gt 1 --hand-pose --object-offset
-    wait
-    # the fine-tunes barely weight the new inputs: the same from scratch, as train.sh's GT student at 16000 steps
+    # from scratch, as train.sh's GT student at 16000 steps
     python -m trainer student fit --demos runs/sim/demos_seen.zarr --depth-source gt --out runs/student/gt_hpo_16k \
         --object-loss 1 --steps 16000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 \
         --threads 1 --ckpt-every 1000 --hand-pose --object-offset
     python -m export runs/student/gt_hpo_16k/ckpt.pt --ddim-steps 4 --out runs/student/gt_hpo_16k.onnx
     export_x4 gt_hpo_16k
     for objects in seen unseen; do
-        for name in gt_hp_8k gt_hpo_8k gt_hpo_16k gt_hpo_16k_x4; do
+        for name in gt_hpo_16k gt_hpo_16k_x4; do
             cell "$name" "runs/student/$name.onnx" none clean "$objects" 180 runs/table2/key
         done
     done
@@ -482,66 +467,14 @@ wrist_measures() {  # name: the exec-4 export of runs/student/NAME, its clean ce
         > "runs/table2/copycat_$1.log" 2>&1
 }
 
-turn6k() {  # docs/student.md@b8caf57 "The wrist's turn": the best GT student given --seen-turn (the object head reads the
-    # object's yaw from the fingers and the state encoder reads that), 12000 steps from it
-    finetune gt6k_hpost_12k runs/sim/demos_seen_6k.zarr gt 2 $HPOS --seen-turn --steps 12000 \
-        --init runs/student/gt6k_hpos_more_12k/ckpt.pt
-    wrist_measures gt6k_hpost_12k
-}
-
-onefr6k() {  # docs/student.md@b8caf57 "The wrist's turn": the best GT student reading one depth frame instead of three
-    # (--obs-horizon 1 --init folds the older frames' first-layer weights into it), 12000 steps
-    finetune gt6k_hpos1_12k runs/sim/demos_seen_6k.zarr gt 2 $HPOS --obs-horizon 1 --steps 12000 \
-        --init runs/student/gt6k_hpos_more_12k/ckpt.pt
-    wrist_measures gt6k_hpos1_12k
-}
-
 wrist() {  # docs/student.md@b8caf57 "The wrist's turn": 1000 demos whose wrist starts anywhere in +-1.5 rad (the default
     # +-0.05 lets the wrist's angle tell a student which way the expert turns it), the best GT student fine-tuned
-    # 12000 steps on them; then the same from turn6k's --seen-turn student
+    # 12000 steps on them
     python -m trainer collect --episodes 1000 --objects seen --seed 50000 --wrist-noise 1.5 --workers 2 \
         --out runs/sim/demos_seen_wrist.zarr
     finetune wrist_hpos_12k runs/sim/demos_seen_wrist.zarr gt 2 $HPOS --steps 12000 \
         --init runs/student/gt6k_hpos_more_12k/ckpt.pt
     wrist_measures wrist_hpos_12k
-    finetune wristturn_hpos_12k runs/sim/demos_seen_wrist.zarr gt 2 $HPOS --seen-turn --steps 12000 \
-        --init runs/student/gt6k_hpost_12k/ckpt.pt
-    wrist_measures wristturn_hpos_12k
-}
-
-wrist6k() {  # docs/student.md@b8caf57 "The wrist's turn": `wrist`'s demos grown to 6000, all with the wrist started
-    # anywhere, and a --seen-turn student trained on them from scratch with `sixk`'s schedule, so that no proxy is there
-    # to learn; collect resumes a partial store. Stopped at step 20000 of 36000 (2026-11-25): its head read the yaw
-    # from the fingers at chance at the first steps (the fingers are out of view and may point anywhere), so the
-    # rest went to yaw6k; the step-20000 checkpoint is measured
-    grow_demos runs/sim/demos_seen_wrist.zarr runs/sim/demos_seen_wrist6k.zarr 6000 50000 --objects seen \
-        --wrist-noise 1.5
-    fit wristturn6k_36k runs/sim/demos_seen_wrist6k.zarr gt 2 36000 --lr 3e-4 --hand-pose --object-offset \
-        --seen-offset --seen-turn
-    wrist_measures wristturn6k_36k
-}
-
-yaw6k() {  # docs/student.md@b8caf57 "The wrist's turn": wrist6k's demos and schedule with --seen-yaw instead of --seen-turn:
-    # the head reads the object's yaw on the table, which depth shows, and the network turns it into the fingers'
-    # frame by its forward kinematics
-    fit yaw6k_36k runs/sim/demos_seen_wrist6k.zarr gt 2 36000 --lr 3e-4 --hand-pose --object-offset \
-        --seen-offset --seen-yaw
-    wrist_measures yaw6k_36k
-}
-
-yaw6k_onefr() {  # docs/student.md@b8caf57 "From scratch, without the proxy": yaw6k fine-tuned 12000 steps reading one depth
-    # frame (--obs-horizon 1 --init folds the older frames' weights into it), so that the frames' motion is gone
-    finetune yaw6k_1fr_12k runs/sim/demos_seen_wrist6k.zarr gt 2 $HPOS --seen-yaw --obs-horizon 1 --steps 12000 \
-        --init runs/student/yaw6k_36k/ckpt.pt
-    wrist_measures yaw6k_1fr_12k
-}
-
-keyframe() {  # docs/student.md@b8caf57 "The wrist's turn": the best GT student fine-tuned 12000 steps with the steps where
-    # the expert's action changes (which way to turn, when to close) drawn more often (--keyframe-weight 10: the
-    # first two steps of an episode make 8 % of the draws instead of 3 %)
-    finetune gt6k_hpokf_12k runs/sim/demos_seen_6k.zarr gt 2 $HPOS --keyframe-weight 10 --steps 12000 \
-        --init runs/student/gt6k_hpos_more_12k/ckpt.pt
-    wrist_measures gt6k_hpokf_12k
 }
 
 velocity() {  # docs/student.md@b8caf57 "The first step's turn": moredata's gt3k_hpos_36k again (on 2 threads: runs/ had
@@ -568,38 +501,6 @@ velocity() {  # docs/student.md@b8caf57 "The first step's turn": moredata's gt3k
     done
 }
 
-velocity_yaw() {  # docs/student.md@b8caf57 "The first step's turn": both velocity students fine-tuned 12000 steps with a yaw
-    # reading (--seen-yaw: its new state inputs start at zero weight), one thread each, side by side; who decides
-    finetune gt3k_hposy_v_12k runs/sim/demos_seen_3k.zarr gt 1 $HPOS --seen-yaw --steps 12000 \
-        --prediction v_prediction --init runs/student/gt3k_hpos_v_36k/ckpt.pt &
-    finetune gt3k_hposy_12k runs/sim/demos_seen_3k.zarr gt 1 $HPOS --seen-yaw --steps 12000 \
-        --init runs/student/gt3k_hpos_36k/ckpt.pt
-    wait
-    for name in gt3k_hposy_12k gt3k_hposy_v_12k; do
-        python research/student_v1/diagnose.py decides --checkpoint "runs/student/$name/ckpt.pt" \
-            --demos runs/sim/demos_seen_3k.zarr --episodes 600 > "runs/table2/decides_$name.log" 2>&1
-    done
-}
-
-firstframe() {  # docs/student.md@b8caf57 "The episode's first frame": velocity's v-prediction student again with the episode's
-    # first depth frame stacked before the last three (the object before the hand covers it), then `measure`;
-    # the same measures of gt3k_hpos_v_36k beside it. Run on 2026-11-25: it stopped at `locate` on a missing
-    # editable install; its cells, both `locate`s and the baseline's held-out probe ran by hand with these commands
-    python -m trainer student fit --demos runs/sim/demos_seen_3k.zarr --depth-source gt --object-loss 1 \
-        --steps 36000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 \
-        --ckpt-every 1000 $HPOS --prediction v_prediction --first-frame --out runs/student/gt3k_hposf_v_36k
-    measure gt3k_hposf_v_36k runs/sim/demos_seen_3k.zarr
-    measure gt3k_hpos_v_36k runs/sim/demos_seen_3k.zarr
-}
-
-ddgaf3k() {  # docs/student.md@b8caf57 "The episode's first frame": ddga6k's two fine-tunes on DDG (a) depth of the first
-    # 1000 demos, from firstframe's student (velocity, first frame, 3000 demos), and its cells under both sensors
-    ddg_depth models/ddg runs/sim/demos_seen.zarr runs/sim/demos_seen_ddg_a.zarr
-    START=gt3k_hposf_v_36k fine_tunes ddgaf3k runs/sim/demos_seen_ddg_a.zarr ddg 2 --prediction v_prediction \
-        --first-frame
-    both_sensors ddgaf3k_hpos_more_12k_x4
-}
-
 both_sensors() {  # name: the exec-4 file runs/student/NAME.onnx under stereo, then clean, seen and unseen kinds, 180
     # episodes per cell -> runs/table2/key
     local sensor objects
@@ -608,44 +509,6 @@ both_sensors() {  # name: the exec-4 file runs/student/NAME.onnx under stereo, t
             cell "$1" "runs/student/$1.onnx" none "$sensor" "$objects" 180 runs/table2/key
         done
     done
-}
-
-first_turn_fit() {  # docs/student.md@b8caf57 "The first step's turn, read from the yaw": does the denoiser fit the first
-    # step's turn on its own training demos when a head reads it the object's yaw? 300 demos, 6000 steps from
-    # scratch, epsilon beside velocity (one thread each), each judged on its training demos and the held-out ones
-    [ -d runs/student/demos_300.zarr ] || python -m trainer collect --episodes 300 --objects seen --workers 2 \
-        --out runs/student/demos_300.zarr
-    heldout_60
-    local p
-    for p in epsilon v_prediction; do
-        python -m trainer student fit --demos runs/student/demos_300.zarr --depth-source gt --object-loss 1 \
-            --steps 6000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 1 \
-            --ckpt-every 1000 $HPOS --seen-yaw --prediction "$p" --out "runs/student/yaw300_$p" &
-    done
-    wait
-    for p in epsilon v_prediction; do
-        python -m export "runs/student/yaw300_$p/ckpt.pt" --ddim-steps 4 --out "runs/student/yaw300_$p.onnx"
-        python research/student_v1/diagnose.py copycat "runs/student/yaw300_$p.onnx" --demos runs/student/demos_300.zarr \
-            --checkpoint "runs/student/yaw300_$p/ckpt.pt" > "runs/table2/copycat_yaw300_${p}_train.log" 2>&1
-        python research/student_v1/diagnose.py copycat "runs/student/yaw300_$p.onnx" --demos runs/student/heldout_60.zarr \
-            --checkpoint "runs/student/yaw300_$p/ckpt.pt" > "runs/table2/copycat_yaw300_${p}_heldout.log" 2>&1
-    done
-}
-
-yaw_v() {  # docs/student.md@b8caf57 "The first step's turn, read from the yaw": `velocity`'s velocity student with one
-    # flag more, --seen-yaw (the head reads the object's yaw from the start), then who decides its first turn and
-    # wrist_measures, and its reading on the held-out demos
-    demos_3k
-    heldout_60
-    python -m trainer student fit --demos runs/sim/demos_seen_3k.zarr --depth-source gt --object-loss 1 \
-        --steps 36000 --batch 32 --lr 3e-4 --warmup 200 --width 16 --head-dims 32 64 128 --threads 2 \
-        --ckpt-every 1000 $HPOS --prediction v_prediction --seen-yaw --out runs/student/gt3k_hposy_v_36k
-    python research/student_v1/diagnose.py decides --checkpoint runs/student/gt3k_hposy_v_36k/ckpt.pt \
-        --demos runs/sim/demos_seen_3k.zarr --episodes 600 > runs/table2/decides_gt3k_hposy_v_36k.log 2>&1
-    wrist_measures gt3k_hposy_v_36k
-    python research/student_v1/diagnose.py copycat runs/student/gt3k_hposy_v_36k_x4.onnx \
-        --demos runs/student/heldout_60.zarr --checkpoint runs/student/gt3k_hposy_v_36k/ckpt.pt \
-        > runs/table2/copycat_gt3k_hposy_v_36k_reading.log 2>&1
 }
 
 finer() {  # docs/student.md@b8caf57 "Finer pixels": `velocity`'s velocity student on 3000 demos whose depth is 192x144 of
@@ -675,14 +538,4 @@ ddga192_short() {  # docs/student.md@b8caf57 "A shorter DDG (a) fine-tune": ddga
     both_sensors ddga192_hpos_8k_x4
 }
 
-mix192() {  # [SHARE]: docs/student.md@b8caf57 "A shorter DDG (a) fine-tune": ddga192_short's fine-tune with SHARE (default
-    # 0.5) of its samples on the same demos' clean depth (--gt-share), under both sensors
-    local share=${1:-0.5}
-    local name=mix192_${share/./}_hpos_8k
-    finetune "$name" runs/sim/demos_seen_3k_192_ddg_a.zarr ddg 2 $HPOS --prediction v_prediction --episodes 1000 \
-        --gt-share "$share" --init runs/student/gt3k192_hpos_v_36k/ckpt.pt
-    export_x4 "$name"
-    both_sensors "${name}_x4"
-}
-
-"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|turn6k|onefr6k|wrist|wrist6k|yaw6k|yaw6k_onefr|keyframe|velocity|velocity_yaw|firstframe|ddgaf3k|first_turn_fit|yaw_v|finer|ddga192|ddga192_short|mix192 [NAME...]}"
+"${@:?usage: table2.sh train|evaluate|table|key|reactive|dagger|ddg_b|dart|looking|handpose|moredata|sixk|ddgb6k|ddgb_heldout|ddgb6k_all|ddgb4k|sensor|best|ddga6k|nografta6k|wrist|velocity|finer|ddga192|ddga192_short [NAME...]}"
