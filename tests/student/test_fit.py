@@ -16,7 +16,7 @@ import zarr
 from runtime.preprocess import DepthSpec
 from tests.conftest import write_synthetic_demos
 from trainer.student import checkpoint
-from trainer.student.data import DemoDataset, column_scale
+from trainer.student.data import DemoDataset
 from trainer.student.train import DenoisingLoss, FitError, warm_start
 from trainer.student.train import main as fit_main
 
@@ -230,28 +230,6 @@ def test_hand_target_widens_the_object_head_and_probe_reports_it(small_demos, tm
     plain = tmp_path / "plain"
     assert fit_main(fit_args(small_demos, plain, 1)) == 0
     assert "hand_offset_err_cm" not in locate(str(plain / "ckpt.pt"), str(small_demos), "gt", every=1)
-
-
-def test_object_demos_train_the_object_head_in_the_training_demos_units(small_demos, tmp_path):
-    other = write_synthetic_demos(tmp_path / "other.zarr", spec=SMALL_SPEC, seed=5)
-    data = DemoDataset(small_demos, "gt", 3, 16)
-    extra = DemoDataset(other, "gt", 3, 16, target_reference=data.raw_targets)
-    mean, std = column_scale(data.raw_targets)  # the training demos' units, not the extra store's own
-    np.testing.assert_allclose(extra.targets, (extra.raw_targets - mean) / std, rtol=1e-5, atol=1e-6)
-    assert not np.allclose(extra.targets, DemoDataset(other, "gt", 3, 16).targets)
-    # they enter the object loss and nothing else: same batch and noise, another object loss
-    net = checkpoint.load(_fitted(small_demos, tmp_path)).policy()
-    loss = DenoisingLoss(net, object_weight=1.0)
-    batch, seen = data.batch(np.arange(4)), extra.batch(np.arange(4))
-    total, eq10 = loss(batch, torch.Generator().manual_seed(0))
-    total_with, eq10_with = loss(batch, torch.Generator().manual_seed(0), seen)
-    assert eq10_with == eq10 and total_with != total
-    out = tmp_path / "with_object_demos"
-    assert fit_main([*fit_args(small_demos, out, 2), "--object-demos", str(other)]) == 0
-    assert json.loads((out / "summary.json").read_text())["fit"]["object_demos"] == str(other)
-    with pytest.raises(FitError, match="object-loss"):
-        fit_main([*fit_args(small_demos, tmp_path / "no", 1), "--object-demos", str(other),
-                  "--object-loss", "0"])
 
 
 def _fitted(demos, tmp_path):

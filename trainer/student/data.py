@@ -52,11 +52,8 @@ class DemoDataset:
     """All of a store's steps in memory (uint16 depth: ~25 kB per step)."""
 
     def __init__(self, path: str | Path, depth_source: str, obs_horizon: int, action_horizon: int,
-                 hand_target: bool = False, target_reference: np.ndarray | None = None,
-                 episodes: int = 0) -> None:
-        """``target_reference``: the privileged targets whose mean and std standardise this store's (default:
-        its own); a store that only trains the object head is standardised like the training demos.
-        ``episodes``: only the store's first this many (0 = all). ``hand_target``: the privileged targets'
+                 hand_target: bool = False, episodes: int = 0) -> None:
+        """``episodes``: only the store's first this many (0 = all). ``hand_target``: the privileged targets'
         columns (``privileged_targets``)."""
         if depth_source not in DEPTH_SOURCES:
             raise DemoDataError(f"unknown depth source {depth_source!r}; "
@@ -83,8 +80,7 @@ class DemoDataset:
         self._start = np.repeat(starts, steps_per_ep)
         self._end = np.repeat(self.ends, steps_per_ep)
         self.raw_targets = privileged_targets(store, hand_target, n)
-        reference = self.raw_targets if target_reference is None else target_reference
-        self.targets = None if self.raw_targets is None else standardise(self.raw_targets, reference)
+        self.targets = None if self.raw_targets is None else standardise(self.raw_targets)
 
     @classmethod
     def stacked_as(cls, path: str | Path, depth_source: str, policy, spec: DepthSpec | None = None,
@@ -185,8 +181,7 @@ def column_scale(reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return reference.mean(0), np.maximum(reference.std(0), 1e-6)
 
 
-def standardise(values: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """Metres -> the auxiliary loss's units: zero mean, unit std per column over ``reference`` (the
-    training demos)."""
-    mean, std = column_scale(reference)
+def standardise(values: np.ndarray) -> np.ndarray:
+    """Metres -> the auxiliary loss's units: zero mean, unit std per column over the training demos."""
+    mean, std = column_scale(values)
     return ((values - mean) / std).astype(np.float32)

@@ -64,9 +64,6 @@ class FitConfig:
     """Weight of the auxiliary loss: predict the object's table position (privileged, sim-only) from the
     depth features, and with the model's ``--hand-target`` the hand's offset from it. Without it the
     students learned to ignore depth (docs/student.md); 0 = eq. 10 alone."""
-    object_demos: str = ""
-    """A second demo store whose frames train only the object head (with weight ``object_loss``), never the
-    actions. Half a batch of them is drawn per step."""
     ema_max: float = 0.9999
     """Ceiling of the EMA decay; the decay ramps up as 1 - (1 + step)^-0.75 (diffusion_policy)."""
     ckpt_every: int = 500
@@ -99,9 +96,7 @@ class DenoisingLoss(nn.Module):
         self.object_weight = object_weight
         self.scheduler = training_scheduler(policy.config.train_timesteps, policy.config.prediction)
 
-    def forward(self, batch: Batch, generator: torch.Generator,
-                seen_only: Batch | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-        """``seen_only``: frames (``FitConfig.object_demos``) that add to the object loss alone."""
+    def forward(self, batch: Batch, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         clean = self.policy.action_norm.normalise(batch.action)
         noise = torch.randn(clean.shape, generator=generator)
         steps = self.scheduler.config.num_train_timesteps
@@ -113,26 +108,8 @@ class DenoisingLoss(nn.Module):
         denoising = nn.functional.mse_loss(self.policy(noisy, k, obs), target)
         if not self.object_weight:
             return denoising, denoising
-        if seen_only is not None:
-            features = torch.cat([features, self.policy.encoder(seen_only.depth)])
-            targets = torch.cat([batch.targets, seen_only.targets])
-        else:
-            targets = batch.targets
-        located = nn.functional.mse_loss(self.policy.object_head(features), targets)
+        located = nn.functional.mse_loss(self.policy.object_head(features), batch.targets)
         return denoising + self.object_weight * located, denoising
-
-
-def object_frames(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset) -> DemoDataset | None:
-    """``cfg.object_demos`` as a dataset whose targets are in ``data``'s units, or None if not asked for."""
-    if not cfg.object_demos:
-        return None
-    if not cfg.object_loss:
-        raise FitError("--object-demos trains the object head: it needs --object-loss > 0")
-    extra = DemoDataset.stacked_as(cfg.object_demos, cfg.depth_source, model_cfg, data.spec,
-                                   hand_target=model_cfg.hand_target, target_reference=data.raw_targets)
-    if extra.targets is None:
-        raise FitError(f"{cfg.object_demos} does not record object_xy for every episode")
-    return extra
 
 
 def ema_update(ema: dict[str, torch.Tensor], model: nn.Module, step: int, ema_max: float) -> None:
@@ -232,7 +209,6 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
                        "--object-loss > 0")
     if cfg.object_loss and data.targets is None:
         raise FitError(f"{cfg.demos} does not record object_xy for every episode; train with --object-loss 0")
-    extra = object_frames(cfg, model_cfg, data)
     ckpt = start_or_resume(cfg, model_cfg, data)
     net = StudentPolicy(model_cfg)
     net.load_state_dict(ckpt.model)
@@ -247,14 +223,12 @@ def fit(cfg: FitConfig, model_cfg: StudentConfig) -> dict:
     seed = cfg.seed * 1_000_003 + ckpt.step * 7919 + rank
     rng, gen = np.random.default_rng(seed), torch.Generator().manual_seed(seed)
     start, started = ckpt.step, time.perf_counter()
-    extra_batch = max(1, cfg.batch // world // 2)
     bar = tqdm(range(start, cfg.steps), initial=start, total=cfg.steps, disable=rank != 0, desc="student fit")
     for step in bar:
         for group in optim.param_groups:
             group["lr"] = cfg.lr * lr_factor(step, cfg)
         batch = data.batch(rng.integers(0, len(data), cfg.batch // world), rng)
-        seen_only = None if extra is None else extra.batch(rng.integers(0, len(extra), extra_batch), rng)
-        loss, denoising = trainable(batch, gen, seen_only)
+        loss, denoising = trainable(batch, gen)
         optim.zero_grad(set_to_none=True)
         loss.backward()
         optim.step()
