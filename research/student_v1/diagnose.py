@@ -221,7 +221,7 @@ COPYCAT_STEPS = {"0-1": (0, 2), "2-5": (2, 6), "6-11": (6, 12), "12-29": (12, 30
 
 def elongated_starts(data, store) -> np.ndarray:
     """The first steps of the banana and block episodes among ``data``'s (a ``DemoDataset`` of ``store``)."""
-    kinds = [str(k) for k in store.root["meta/kind"][: len(data.ends)]]
+    kinds = store.kinds[: len(data.ends)]
     return np.array([s for s, k in zip(np.r_[0, data.ends[:-1]], kinds, strict=True) if k in ELONGATED], int)
 
 

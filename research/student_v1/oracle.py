@@ -72,8 +72,7 @@ def demos(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     store = DemoStore.open(path)
     n, lengths = int(store.episode_ends[-1]), store.episode_lengths
     episodes = [json.loads(str(r)) for r in store.root["meta/randomisation"][:]]
-    kinds = store.root["meta/kind"][:]
-    facts = np.stack([object_facts(e, str(k)) for e, k in zip(episodes, kinds, strict=True)])
+    facts = np.stack([object_facts(e, k) for e, k in zip(episodes, store.kinds, strict=True)])
     state = np.asarray(store.root["data/state"][:n], np.float32)
     action = np.asarray(store.root["data/action"][:n], np.float32)
     return state, action, np.repeat(facts, lengths, axis=0), np.repeat(store.episode_ends, lengths)
