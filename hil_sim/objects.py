@@ -100,7 +100,7 @@ BUILTIN: tuple[ObjectKind, ...] = (
                seen=False),
     ObjectKind("starfruit", 8, (Geom("mesh", mesh="starfruit"),), 0.12, 0.9, (0.85, 0.8, 0.2, 1),
                mesh_vertices=_star_prism(), seen=False),
-    ObjectKind("lemon", 9, (Geom("ellipsoid", (0.034, 0.026, 0.026)),), 0.10, 0.9, (1.0, 0.9, 0.1, 1),
+    ObjectKind("lemon", 9, (Geom("ellipsoid", (0.034, 0.027, 0.025)),), 0.10, 0.9, (1.0, 0.9, 0.1, 1),
                seen=False),
     ObjectKind("can", 10, (Geom("cylinder", (0.033, 0.06)),), 0.30, 0.7, (0.7, 0.7, 0.75, 1), seen=False),
     ObjectKind("wheel", 11, (Geom("cylinder", (0.03, 0.012)), Geom("cylinder", (0.012, 0.018))), 0.08, 1.0,
