@@ -4,9 +4,11 @@ Runs the policy over the same seeds as ``trainer evaluate`` (10000..) on the giv
 the first step it commands the gripper shut, reads the simulator's labels (``trainer.sim.labels``): the object
 centre's offset from the grasp site, and how far the fingers' closing axis is turned from the object's narrow
 axis (0 degrees: the fingers close across the object's narrow side; round kinds have no such axis). Prints the
-medians for the successes and the failures apart, then each failure.
+medians for the successes and the failures apart, then each failure. With ``--takeover`` the expert
+(``ReactiveExpert``) drives from the policy's first close on: if that grasps, the policy's approach and close
+were good enough and what it did after them lost the episode.
 
-    python research/m0_failures.py oracle:CKPT [--kinds banana pear] [--episodes 40]
+    python research/m0_failures.py oracle:CKPT [--kinds banana pear] [--episodes 40] [--takeover]
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, OFFSET, frame_labels
 from trainer.sim.rollout import Job, run_episode
 from trainer.student.model import hand_pose, into_fingers
+from trainer.teacher.scripted import ReactiveExpert
 
 
 def yaw_error_deg(labels: np.ndarray, state: np.ndarray) -> float:
@@ -43,12 +46,34 @@ class FirstClose:
         self.policy.reset(info)
         self.close = (np.full(3, np.nan), float("nan"))
 
+    @property
+    def closed(self) -> bool:
+        return not np.isnan(self.close[0]).all()
+
     def act(self, observation: Observation) -> np.ndarray:
         action = np.asarray(self.policy.act(observation), np.float32)
-        if np.isnan(self.close[0]).all() and action[7] > 0:
+        if not self.closed and action[7] > 0:
             labels = frame_labels(self.env)
             self.close = (labels[OFFSET] * 100, yaw_error_deg(labels, observation.state))
         return action
+
+
+class Takeover(FirstClose):
+    """The policy until its first close, the expert from then on."""
+
+    def __init__(self, policy, env: GraspEnv) -> None:
+        super().__init__(policy, env)
+        self.expert = ReactiveExpert()
+
+    def reset(self, info: dict) -> None:
+        super().reset(info)
+        self.expert.reset(info)
+
+    def act(self, observation: Observation) -> np.ndarray:
+        if self.closed:
+            return self.expert.act(observation)
+        action = super().act(observation)
+        return self.expert.act(observation) if self.closed else action
 
 
 def main() -> None:
@@ -56,10 +81,11 @@ def main() -> None:
     p.add_argument("policy")
     p.add_argument("--kinds", nargs="+", default=["banana", "pear"])
     p.add_argument("--episodes", type=int, default=40)
+    p.add_argument("--takeover", action="store_true", help="the expert drives from the policy's first close")
     args = p.parse_args()
     kinds = tuple(args.kinds)
     env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=depth_spec(args.policy)))
-    policy = FirstClose(make_policy(args.policy), env)
+    policy = (Takeover if args.takeover else FirstClose)(make_policy(args.policy), env)
     rows = []
     for job in (Job(10_000 + i, kinds[i % len(kinds)]) for i in range(args.episodes)):
         rollout = run_episode(env, policy, job)
