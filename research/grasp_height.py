@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 
 from trainer.sim.env import EnvConfig, GraspEnv
-from trainer.sim.rollout import Job, run_episode
+from trainer.sim.rollout import run_episode, schedule
 from trainer.teacher.scripted import ExpertConfig, ReactiveExpert
 
 
@@ -28,8 +28,8 @@ def main() -> None:
         counts = []
         for height in args.heights_cm:
             expert = ReactiveExpert(ExpertConfig(tip_clearance_m=height / 100))
-            counts.append(sum(run_episode(env, expert, Job(10_000 + i, kind)).success
-                              for i in range(args.episodes)))
+            counts.append(sum(run_episode(env, expert, job).success
+                              for job in schedule((kind,), 10_000, args.episodes)))
         env.close()
         print(f"{kind:>10} of {args.episodes}: " + "  ".join(f"{c:5d}" for c in counts))
 

@@ -21,7 +21,7 @@ import torch
 from trainer.policies import Observation, depth_spec, make_policy
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, OFFSET, frame_labels
-from trainer.sim.rollout import Job, run_episode
+from trainer.sim.rollout import run_episode, schedule
 from trainer.student.model import hand_pose, into_fingers
 from trainer.teacher.scripted import ReactiveExpert
 
@@ -87,7 +87,7 @@ def main() -> None:
     env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=depth_spec(args.policy)))
     policy = (Takeover if args.takeover else FirstClose)(make_policy(args.policy), env)
     rows = []
-    for job in (Job(10_000 + i, kinds[i % len(kinds)]) for i in range(args.episodes)):
+    for job in schedule(kinds, 10_000, args.episodes):
         rollout = run_episode(env, policy, job)
         rows.append((job.kind, rollout.success, rollout.steps, *policy.close))
     for success in (True, False):
