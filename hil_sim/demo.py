@@ -245,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     (args.out / "demo.json").write_text(json.dumps(doc, indent=2) + "\n")
     lat = doc["latency_ms"]
     print(f"grasps    {doc['grasped']} of {doc['episodes']} episodes, success {doc['successes']} "
-          f"({doc['success_rate']:.0%}; measured over 180 episodes: README, Table II)\n"
+          f"({doc['success_rate']:.0%}; measured over 180 episodes: the README's first table)\n"
           f"latency   frame received -> command at driver p50 {lat['p50']:.1f} ms, p99 {lat['p99']:.1f} ms "
           f"(goal {report.LATENCY_GOAL_MS:g}); {doc['ticks']} ticks, {doc['late_ticks']} late\n"
           f"events    {_events(Counter(doc['events']))}\n"

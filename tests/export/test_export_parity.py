@@ -119,6 +119,14 @@ def test_check_on_a_missing_or_corrupt_file_is_one_error_line(tmp_path, content,
     assert proc.stderr.count("\n") == 1 and needle in proc.stderr
 
 
+def test_export_of_a_file_that_is_not_a_checkpoint_is_one_error_line(tmp_path, capsys):
+    bad = tmp_path / "ckpt.pt"
+    bad.write_text("not a checkpoint")  # torch.load raised an UnpicklingError with a 30-line traceback
+    assert export_main([str(bad), "--ddim-steps", "4", "--out", str(tmp_path / "s.onnx")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{bad} is not a student checkpoint" in err
+
+
 def test_check_without_the_checkpoint_compares_with_the_reference_recorded_at_export(
         untrained_student_checkpoint, tmp_path):
     """A clone has the policy file but not its checkpoint: parity is still measured, against the torch

@@ -108,6 +108,15 @@ def test_trainer_help_goes_to_stdout_and_an_unknown_command_is_named() -> None:
     assert bogus.returncode == 2 and bogus.stderr.strip().endswith("error: unknown command 'bogus'")
 
 
+def test_a_policy_the_workers_cannot_load_is_one_error_not_a_hang(tmp_path) -> None:
+    missing = tmp_path / "missing.pt"  # each spawned worker loads it; a pool whose setup raised respawned
+    run = subprocess.run([sys.executable, "-m", "trainer", "evaluate", "--policy", f"oracle:{missing}",
+                          "--objects", "cube", "--episodes", "2", "--workers", "2"], cwd=REPO,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert run.stderr.strip().splitlines()[-1].startswith(f"error: cannot read student checkpoint {missing}")
+
+
 @pytest.mark.slow
 def test_killed_collection_keeps_whole_episodes(tmp_path) -> None:
     out = tmp_path / "demos.zarr"

@@ -173,5 +173,23 @@ def in_workers(init: Callable, initargs: tuple, work: Callable, jobs: Iterable, 
             state.pop("env").close()
         return
     ctx = mp.get_context("spawn")
-    with ctx.Pool(workers, initializer=init, initargs=initargs) as pool:
-        yield from pool.imap(work, jobs)
+    with ctx.Pool(workers, initializer=_init_or_keep, initargs=(init, initargs)) as pool:
+        yield from pool.imap(partial(_work_or_raise, work), jobs)
+
+
+_INIT_ERROR: dict = {}
+"""A worker's setup error (a policy that cannot be loaded), raised by its first job: a pool whose initializer
+raises starts new workers for ever; a job's error reaches the parent as one worker's would."""
+
+
+def _init_or_keep(init: Callable, initargs: tuple) -> None:
+    try:
+        init(*initargs)
+    except Exception as exc:  # noqa: BLE001 - kept whole and raised in the parent by _work_or_raise
+        _INIT_ERROR["error"] = exc
+
+
+def _work_or_raise(work: Callable, job):
+    if "error" in _INIT_ERROR:
+        raise _INIT_ERROR["error"]
+    return work(job)

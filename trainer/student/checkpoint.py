@@ -76,8 +76,11 @@ def save(path: Path, ckpt: Checkpoint) -> None:
 def load(path: Path) -> Checkpoint:
     try:
         d = torch.load(Path(path), map_location="cpu", weights_only=True)
-    except (OSError, RuntimeError) as exc:
+    except OSError as exc:
         raise CheckpointError(f"cannot read student checkpoint {path}: {exc}") from None
+    except Exception as exc:  # on a file that is not its zip, torch raises pickle, index or runtime errors
+        raise CheckpointError(f"{path} is not a student checkpoint (torch.load: {type(exc).__name__})") \
+            from None
     if not isinstance(d, dict) or d.get("format") != FORMAT:
         raise CheckpointError(f"{path} is not a student checkpoint (expected format {FORMAT!r})")
     return Checkpoint(StudentConfig.from_json(d["config"]), TrainingInfo.from_json(d["info"]), d["ema"],
