@@ -86,6 +86,12 @@ def resolve_model(model: Path | None) -> Path:
     if model is not None:
         if not model.is_file():
             raise BenchmarkError(f"--model {model} does not exist")
+        from runtime.policy import Policy, PolicyError  # onnxruntime: only to vet a file the user names
+
+        try:  # here, or the runtime process fails on it with its reason only in its log
+            Policy(model)
+        except PolicyError as exc:
+            raise BenchmarkError(f"--model {exc}") from None
         return model
     if TRAINED_MODEL.is_file():
         return TRAINED_MODEL

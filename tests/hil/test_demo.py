@@ -78,6 +78,15 @@ def test_a_zero_rate_is_refused_in_one_line(module):
     assert done.returncode == 2 and done.stderr.strip() == f"{module}: --rate must be positive, got 0"
 
 
+@pytest.mark.parametrize("module", ["hil_sim", "hil_sim.demo"])
+def test_a_model_that_is_not_onnx_is_named_before_any_run(module, tmp_path):
+    bad = tmp_path / "x.onnx"
+    bad.write_text("garbage")  # the runtime process died on it and the demo blamed a missing ticks.jsonl
+    done = _cli(module, "--model", str(bad), timeout=60)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1
+    assert done.stderr.startswith(f"{module}: --model {bad}: not a loadable ONNX model")
+
+
 @pytest.mark.hil
 @pytest.mark.slow
 def test_one_short_episode_writes_the_summary_the_video_and_the_plot(tmp_path):
