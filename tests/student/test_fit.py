@@ -79,6 +79,16 @@ def test_resume_with_another_model_is_refused(small_demos, tmp_path):
         fit_main([*fit_args(small_demos, out, 2), "--depth-source", "randnoise"])
 
 
+def test_a_missing_store_or_a_file_that_is_no_checkpoint_is_one_error_line(small_demos, tmp_path, capsys):
+    bad = tmp_path / "x.pt"
+    bad.write_text("not a checkpoint")  # torch.load's UnpicklingError was a 49-line traceback
+    assert fit_main([*fit_args(small_demos, tmp_path / "a", 1), "--init", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: {bad} is not a student checkpoint (torch.load: UnpicklingError)\n"
+    assert fit_main(fit_args(tmp_path / "none.zarr", tmp_path / "b", 1)) == 2
+    assert capsys.readouterr().err.startswith("error: no demo store at ")
+
+
 def test_init_starts_a_new_run_from_another_students_weights(small_demos, tmp_path):
     gt = tmp_path / "gt" / "ckpt.pt"
     assert fit_main(fit_args(small_demos, gt.parent, 3)) == 0

@@ -24,7 +24,7 @@ from torch.nn.parallel import DistributedDataParallel
 from tqdm import tqdm
 
 from trainer.argspec import add_dataclass_args, from_args
-from trainer.dataset import DEPTH_SOURCES, sizes
+from trainer.dataset import DEPTH_SOURCES, DatasetError, sizes
 from trainer.diffusion import training_target
 from trainer.student import checkpoint
 from trainer.student.checkpoint import Checkpoint, TrainingInfo
@@ -302,7 +302,11 @@ def main(argv: list[str] | None = None) -> int:
         if getattr(args, name) is None:
             p.error(f"--{name} is required")
     cfg, model_cfg = from_args(FitConfig, args), from_args(StudentConfig, args)
-    summary = fit(cfg, model_cfg)
+    try:
+        summary = fit(cfg, model_cfg)
+    except (checkpoint.CheckpointError, DatasetError) as exc:  # a file that is missing or not what it says
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     if int(os.environ.get("RANK", "0")) == 0:
         print(json.dumps(summary))
     if dist.is_initialized():
