@@ -113,6 +113,20 @@ def test_bad_arguments_give_one_clear_line(tmp_path, args, code, match):
     assert len(errors) == 1 and match in errors[0], proc.stderr
 
 
+def test_a_recording_that_ends_before_the_first_tick_says_nothing_was_commanded(tmp_path):
+    clip = tmp_path / "two.npz"
+    np.savez(clip, depth=np.full((2, 480, 848), 600, np.uint16), fps=30.0)
+    with FakeWorld(RATE) as world:
+        model = handmade.build(tmp_path / "s.onnx")
+        proc = subprocess.run([sys.executable, "-m", "runtime", "--model", str(model), "--camera",
+                               f"replay:{clip}", "--robot", world.robot, "--seconds", "5"],
+                              capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 0, proc.stderr
+    ended = [line for line in proc.stderr.splitlines() if "status camera_ended" in line]
+    assert len(ended) == 1 and ended[0].endswith("it ended before the first tick: nothing was commanded")
+    assert "'ticks': 0" in proc.stderr
+
+
 def test_no_robot_names_the_address_and_the_driver_command_within_seconds(tmp_path):
     robot = f"tcp://127.0.0.1:{free_port_pair()}"  # nothing serves it
     with FakeWorld(RATE) as world:
