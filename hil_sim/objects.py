@@ -109,39 +109,29 @@ BUILTIN: tuple[ObjectKind, ...] = (
                              Geom("capsule", (0.022,), fromto=(-0.05, 0, 0.014, 0.05, 0, 0.014))),
                0.10, 0.8, (0.8, 0.6, 0.35, 1), seen=False),
 )
-SHAPE_COUNT, LOW_SHAPE_COUNT, SHAPE_SEED = 24, 12, 0
-"""How many procedural training shapes there are (group ``shapes``: ``SHAPE_COUNT`` at least 4 cm tall, then
-``LOW_SHAPE_COUNT`` low ones) and the seed that draws them."""
+SHAPE_COUNT, SHAPE_SEED = 24, 0
+"""How many procedural training shapes there are (group ``shapes``) and the seed that draws them."""
 MIN_HALF = 0.02
-"""A shape's smallest half extent across (4 cm), and up unless it is low."""
-LOW_HALF = 0.015
-"""A low shape's smallest half height (3 cm): the reactive expert lifts every 3-4 cm box and capsule (240 of
-240), 2.6 cm ones about one in two."""
+"""A shape's smallest half extent, across or up (4 cm). Twelve more shapes 3-4 cm tall (boxes and lying
+capsules, which the expert lifts 240 of 240 times) gained the readout nothing on wheels (history.md)."""
 SHAPE_DENSITY = 600.0
 """kg/m^3 of a procedural shape (a fruit's is 500-1000), its mass then held to the built-ins' 0.05-0.35 kg."""
 
 
-def _shape(i: int, rng: np.random.Generator, low: bool = False) -> ObjectKind:
+def _shape(i: int, rng: np.random.Generator) -> ObjectKind:
     """Training shape ``shape<i>``: a box, a flattened ellipsoid or a lying capsule of random proportions.
 
     Only the primitive types of the seen kinds are drawn: no upright cylinder and no mesh, so the unseen can,
     wheel and starfruit stay of a type no training shape has. Every shape is stable as it lies (an ellipsoid's
     height below its horizontal semi-axes; a box no taller than twice its narrow side) and spans 4-7.2 cm
-    across its narrow side (the apple 7.2). A ``low`` one is a box or a lying capsule 3-4 cm tall (the
-    capsule as thick across), as the banana (3.6 cm) and the wheel (2.4-3.6): a readout shown only taller
-    shapes misplaces the wheel. No low ellipsoid: its sides slope under the fingers; the expert lifts one in
-    two."""
-    kind = ("box", "capsule")[i % 2] if low else ("box", "ellipsoid", "capsule")[i % 3]
-    narrow = rng.uniform(LOW_HALF, MIN_HALF) if low and kind == "capsule" else rng.uniform(MIN_HALF, 0.036)
+    across its narrow side (the apple 7.2)."""
+    narrow = rng.uniform(MIN_HALF, 0.036)
+    kind = ("box", "ellipsoid", "capsule")[i % 3]
     if kind == "box":
-        long = rng.uniform(narrow, 0.07)
-        up = rng.uniform(LOW_HALF, MIN_HALF) if low else rng.uniform(MIN_HALF, min(0.065, 2 * narrow))
-        size = (narrow, long, up)
+        size = (narrow, rng.uniform(narrow, 0.07), rng.uniform(MIN_HALF, min(0.065, 2 * narrow)))
         geom, volume = Geom("box", size), 8 * math.prod(size)
     elif kind == "ellipsoid":
-        long = rng.uniform(narrow, 0.06)
-        up = rng.uniform(LOW_HALF, MIN_HALF) if low else max(MIN_HALF, rng.uniform(0.5, 0.95) * narrow)
-        size = (narrow, long, up)
+        size = (narrow, rng.uniform(narrow, 0.06), max(MIN_HALF, rng.uniform(0.5, 0.95) * narrow))
         geom, volume = Geom("ellipsoid", size), 4 / 3 * math.pi * math.prod(size)
     else:
         half = rng.uniform(0.0, 0.05)  # the straight part's half length along x
@@ -159,8 +149,7 @@ def _rounded(geom: Geom) -> Geom:
 
 
 _SHAPE_RNG = np.random.default_rng(SHAPE_SEED)
-SHAPES: tuple[ObjectKind, ...] = tuple(_shape(i, _SHAPE_RNG, low=i >= SHAPE_COUNT)
-                                     for i in range(SHAPE_COUNT + LOW_SHAPE_COUNT))
+SHAPES: tuple[ObjectKind, ...] = tuple(_shape(i, _SHAPE_RNG) for i in range(SHAPE_COUNT))
 """Procedural shapes for training only (category 13, as user objects): the seen kinds' primitives at random
 proportions and sizes, which a student needs to read and grasp shapes it was not shown. Evaluation keeps
 the 12 built-in kinds."""
@@ -215,7 +204,7 @@ def resolve(name_or_path: str, category_id: int = 13) -> AnyObject:
     looks_like_path = any(c in name_or_path for c in "/\\.")
     if not looks_like_path:
         raise UnknownObjectError(f"unknown object kind {name_or_path!r}; built-in kinds: "
-                                 f"{', '.join(GROUPS['all'])} and shape00..shape{len(SHAPES) - 1:02d} "
+                                 f"{', '.join(GROUPS['all'])} and shape00..shape{SHAPE_COUNT - 1:02d} "
                                  f"(or give a path to an .stl/.obj mesh or an MJCF .xml)")
     path = Path(name_or_path).expanduser().resolve()
     if not path.is_file():

@@ -21,7 +21,7 @@ def test_shapes_use_only_the_seen_kinds_primitives_and_stay_out_of_the_evaluatio
     types = {g.type for k in objects.SHAPES for g in k.geoms}
     assert types == {"box", "ellipsoid", "capsule"}  # no cylinder or mesh: can, wheel, starfruit
     names = objects.GROUPS["shapes"]
-    assert len(set(names)) == objects.SHAPE_COUNT + objects.LOW_SHAPE_COUNT
+    assert len(set(names)) == objects.SHAPE_COUNT
     assert not set(names) & set(objects.GROUPS["all"])
     assert objects.GROUPS["train"] == objects.SEEN + names
     assert objects.select_kinds("train") == objects.GROUPS["train"]
@@ -36,9 +36,5 @@ def test_every_shape_rests_as_it_lies_and_fits_the_gripper(shapes_world: World, 
     half = shapes_world.object_extent()
     assert np.linalg.norm(pos - start) < 0.003, "a shape must not roll or topple on its own"
     assert pos[2] - TABLE_Z == pytest.approx(half[2], abs=0.004), "it lies on its bottom face"
-    if objects.GROUPS["shapes"].index(kind) < objects.SHAPE_COUNT:
-        assert objects.MIN_HALF - 1e-6 <= min(half[:2]) <= 0.03625, "4-7.2 cm across the narrow side"
-        assert half[2] >= objects.MIN_HALF - 1e-6, "at least 4 cm tall"
-    else:
-        assert objects.LOW_HALF - 1e-6 <= min(half[:2]) <= 0.03625, "3-7.2 cm across the narrow side"
-        assert objects.LOW_HALF - 1e-6 <= half[2] <= objects.MIN_HALF + 1e-6, "a low shape: 3-4 cm tall"
+    assert objects.MIN_HALF - 1e-6 <= min(half[:2]) <= 0.03625, "4-7.2 cm across the narrow side"
+    assert half[2] >= objects.MIN_HALF - 1e-6, "at least 4 cm tall"

@@ -91,10 +91,9 @@ class RecipeConfig:
     perception."""
     objects: str = "seen"
     """The kinds the training episodes (demos, rounds, hover) draw from: a group (``seen``; ``train``, the
-    seen kinds and 36 procedural shapes, ``hil_sim.objects.SHAPES``) or a comma list. The curve and the
-    evaluation keep the seen and unseen kinds. M0 on ``train`` (1000 demos, the first 24 shapes) against M0
-    on ``seen``: unseen 82.2 against 67.8 % (37 episodes won, 11 lost; the can 0 -> 53 %), seen 91.7 against
-    90.6 %."""
+    seen kinds and 24 procedural shapes, ``hil_sim.objects.SHAPES``) or a comma list. The curve and the
+    evaluation keep the seen and unseen kinds. M0 on ``train`` (1000 demos) against M0 on ``seen``: unseen
+    82.2 against 67.8 % (37 episodes won, 11 lost; the can 0 -> 53 %), seen 91.7 against 90.6 %."""
     hover_episodes: int = 0
     """Episodes driven by ``head`` on the true facts offset by ``hover_cm`` in a random horizontal direction
     (fixed per episode), every state labelled by the expert (``data/hover.zarr``, in every fit). They hold
