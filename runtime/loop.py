@@ -192,8 +192,8 @@ class ControlLoop:
                 self._ticks()
             return EXIT_OK
         except CameraEnded as exc:  # the shared .bag (0.17 s) ends during start-up, before any tick
-            unused = "" if self.counts["ticks"] else "; it ended before the first tick: nothing was commanded"
-            self._report("camera_ended", f"{exc}{unused}")
+            idle = "" if self.counts["ticks"] else "; it ended before the first tick: nothing was commanded"
+            self._report("camera_ended", f"{exc}{idle}")
             return EXIT_OK
         except tuple(kind for kind, _ in _EXIT_CODES) as exc:
             self._report("fatal", str(exc))

@@ -185,7 +185,7 @@ raises starts new workers for ever; a job's error reaches the parent as one work
 def _init_or_keep(init: Callable, initargs: tuple) -> None:
     try:
         init(*initargs)
-    except Exception as exc:  # noqa: BLE001 - kept whole and raised in the parent by _work_or_raise
+    except Exception as exc:  # kept whole and raised in the parent by _work_or_raise
         _INIT_ERROR["error"] = exc
 
 
