@@ -153,6 +153,16 @@ def run_runtime(run: Run, watch: Callable[[], bool] | None = None) -> tuple[int,
     return proc.returncode, report.Usage(cpu_percent=cpu, rss_mb=usage.ru_maxrss / 1024.0)
 
 
+def runtime_ticks(run: Run, code: int) -> tuple[list, list[str]]:
+    """The ticks a finished runtime recorded and its log's lines; a runtime that exited before its first tick
+    is a ``BenchmarkError`` carrying its last words (its reason is in its log, not in the missing metrics)."""
+    log = (run.report_dir / "runtime.log").read_text().strip().splitlines()
+    try:
+        return report.load_ticks(run.report_dir / "ticks.jsonl"), log
+    except report.ReportError as exc:
+        raise BenchmarkError(f"runtime exited with {code} before a tick: {' | '.join(log[-3:])}") from exc
+
+
 def benchmark(run: Run) -> dict:
     from hil_sim.server import SimConfig, SimServer  # heavy (MuJoCo, GL): after argument checks
 
@@ -171,11 +181,7 @@ def benchmark(run: Run) -> dict:
                      "physics_lag_s": round(sim.physics.lag_s, 3),
                      "driver_error": repr(sim.driver_error) if sim.driver_error else None}
         commands = list(sim.commands)
-    log = (run.report_dir / "runtime.log").read_text().strip().splitlines()
-    try:
-        ticks = report.load_ticks(run.report_dir / "ticks.jsonl")
-    except report.ReportError as exc:
-        raise BenchmarkError(f"runtime exited with {code} before a tick: {' | '.join(log[-3:])}") from exc
+    ticks, log = runtime_ticks(run, code)
     doc = report.build(ticks, commands, rate_hz=run.rate_hz, usage=usage)
     doc.update(runtime_exit=code, runtime_last_words=log[-2:], model=str(run.model), cores=sorted(cores),
                sim=sim_stats, load_avg=os.getloadavg())

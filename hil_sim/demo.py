@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from hil_sim import report
-from hil_sim.__main__ import REPO, BenchmarkError, Run, pin_cores, resolve_model, run_runtime
+from hil_sim.__main__ import REPO, BenchmarkError, Run, pin_cores, resolve_model, run_runtime, runtime_ticks
 from hil_sim.objects import resolve
 from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT
 
@@ -129,10 +129,10 @@ def run_episode(sim: Any, run: Run, number: int, seed: int, kind: str) -> Episod
     began = time.monotonic()
     code, usage = run_runtime(run, watch=judge)
     seconds = time.monotonic() - began
-    ticks = report.load_ticks(run.report_dir / "ticks.jsonl")
+    ticks, log = runtime_ticks(run, code)
     commands = sim.commands.since(first_command)
     doc = report.build(ticks, commands, rate_hz=run.rate_hz, usage=usage)
-    events = runtime_events((run.report_dir / "runtime.log").read_text())
+    events = runtime_events("\n".join(log))
     return Episode(number, seed, judge, seconds, code, doc, events, ticks, commands)
 
 
