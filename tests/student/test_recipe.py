@@ -116,6 +116,21 @@ def test_training_stacks_are_the_runtimes(tmp_path):
             np.testing.assert_array_equal(batch.chunk[0].numpy(), ep["chunk"][t])
 
 
+def test_training_frames_are_held_in_a_dtype_a_gpu_can_index_and_read_back_exactly(tmp_path):
+    """CUDA cannot index a uint16 tensor (torch 2.11: "index_cuda" not implemented for 'UInt16'), so the
+    frames are held as int16 bits; a sensor value above 32767 must still read back as itself."""
+    from trainer.student.steps import LabelledSteps
+
+    config = EnvConfig(objects=("cube",), max_steps=3)
+    collect_round(tmp_path / "round0.zarr", config, RoundSpec(horizon=4), episodes=1, seed=11)
+    steps = LabelledSteps([tmp_path / "round0.zarr"], obs_horizon=3, action_horizon=4, depth=True)
+    assert steps.frames.dtype == torch.int16
+    far = np.full(steps.frames.shape[1:], 50_000, np.uint16)
+    steps.frames[0] = torch.from_numpy(far.view(np.int16))
+    expected = normalise(far, 0.001, DemoStore.open(tmp_path / "round0.zarr").depth_spec)
+    np.testing.assert_array_equal(steps.batch(torch.tensor([0])).depth[0, -1].numpy(), expected)
+
+
 @pytest.mark.parametrize("variant", [[], ["--fine-stride", "4", "--geometric"]])
 def test_perception_student_exports_with_parity(tmp_path, variant):
     from export.__main__ import main as export_main

@@ -1,10 +1,11 @@
 """Every labelled step of a recipe's stores (the expert's demos and the DAgger rounds) in memory, as tensors
 on the training device, so a batch is a few index gathers rather than a Python loop per sample.
 
-Depth is held as the sensor's uint16 (half the memory of float32 frames: 2000 demos take ~4 GB) and
-normalised per batch through a table of ``runtime.preprocess.normalise`` over every uint16 value, the one
-implementation the runtime runs; stacks follow the ``FrameStack`` rule (the episode's first frame fills the
-history): a sample's stack is what the runtime feeds the policy at that step (tests/student/test_recipe.py).
+Depth is held as the sensor's 16 bits (half the memory of float32 frames: 2000 demos take ~4 GB; as int16,
+since CUDA cannot index a uint16 tensor) and normalised per batch through a table of
+``runtime.preprocess.normalise`` over every uint16 value, the one implementation the runtime runs; stacks
+follow the ``FrameStack`` rule (the episode's first frame fills the history): a sample's stack is what the
+runtime feeds the policy at that step (tests/student/test_recipe.py).
 """
 
 from __future__ import annotations
@@ -54,8 +55,8 @@ class LabelledSteps:
         scales = {part["depth_scale"] for part in parts}
         if len(scales) > 1:
             raise StepsError(f"{paths} mix depth scales {sorted(scales)}")
-        self.frames = (torch.from_numpy(np.concatenate([part["frames"] for part in parts])).to(self.device)
-                       if depth else None)
+        self.frames = (torch.from_numpy(np.concatenate([part["frames"] for part in parts]).view(np.int16))
+                       .to(self.device) if depth else None)
         self.normalised = torch.from_numpy(normalise(np.arange(2 ** 16, dtype=np.uint16), scales.pop(),
                                                      self.spec)).to(self.device)
         """float32 [65536]: ``normalise`` of each uint16 sensor value."""
@@ -85,5 +86,8 @@ class LabelledSteps:
 
     def batch(self, index: torch.Tensor) -> StepBatch:
         index = index.to(self.device)
-        depth = None if self.frames is None else self.normalised[self.frames[self.stack_index[index]].int()]
+        depth = None
+        if self.frames is not None:
+            sensor = self.frames[self.stack_index[index]].int() & 0xFFFF  # int16 bits -> uint16 values
+            depth = self.normalised[sensor]
         return StepBatch(depth, self.state[index], self.labels[index], self.chunk[index])
