@@ -58,11 +58,10 @@ from pathlib import Path
 rec = Path(sys.argv[1])
 with tarfile.open("/tmp/recipe.tgz", "w:gz") as tar:
     for path in sorted(rec.rglob("*")):
-        if "data" in path.relative_to(rec).parts or path.is_dir() or path.suffix in (".onnx", ".tmp"):
-            continue  # stores are too large to travel (a CPU resume collects them again); the exports are redone
-        if path.name in ("ckpt.pt", "composed.pt"):
-            if path.name == "composed.pt":
-                continue
+        if ("data" in path.relative_to(rec).parts or path.is_dir() or path.suffix in (".onnx", ".tmp")
+                or path.name == "composed.pt"):
+            continue  # stores are too large to travel (a CPU resume collects them again); exports are redone
+        if path.name == "ckpt.pt":
             c = torch.load(path, map_location="cpu", weights_only=True)
             torch.save({**c, "model": c["ema"], "optimizer": None}, "/tmp/slim.pt")  # shared tensors saved once
             print(path.parent.name, "step", c["step"])
