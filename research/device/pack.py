@@ -1,13 +1,14 @@
 """Pack a recipe folder into a tar that fits the device's transfer limits (not part of the product).
 
 Finished checkpoints travel slim (EMA weights as the model, no optimiser: a third of the size); a checkpoint
-short of its round's steps stays behind (a slim one could not resume its fit), exports and composed checkpoints
-stay behind (the recipe redoes them in seconds), and stores travel only where named.
+short of its round's steps stays behind (a slim one could not resume its fit); exports and composed
+checkpoints stay behind (the recipe redoes them in seconds); stores travel only where named.
 
     python research/device/pack.py RECIPE_DIR OUT.tar [--stores round1 round2 hover] [--newer FILE]
 
-``--newer FILE`` takes only what changed after FILE did (what a run made), its stores too except the held-out
-ones (a readout's 30 episodes, collected again where needed). The tar holds paths below RECIPE_DIR's parent, so it unpacks into ``~/.cache/diffudepgrasp/recipe``.
+``--newer FILE`` takes only what changed after FILE did (what a run made), its stores too except the
+held-out ones (a readout's 30 episodes, collected again where needed). The tar holds paths below
+RECIPE_DIR's parent, so it unpacks into ``~/.cache/diffudepgrasp/recipe``.
 """
 import argparse
 import io
