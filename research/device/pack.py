@@ -6,9 +6,10 @@ checkpoints stay behind (the recipe redoes them in seconds); stores travel only 
 
     python research/device/pack.py RECIPE_DIR OUT.tar [--stores round1 round2 hover] [--newer FILE]
 
-``--newer FILE`` takes only what changed after FILE did (what a run made), its stores too except the
-held-out ones (a readout's 30 episodes, collected again where needed). The tar holds paths below
-RECIPE_DIR's parent, so it unpacks into ``~/.cache/diffudepgrasp/recipe``.
+``--newer FILE`` takes only what changed after FILE did (what a run made), the learner's round stores too;
+not the expert's demos and hover episodes (collected again from their seeds, they come out identical) nor
+the held-out stores (a readout's 30 episodes). The tar holds paths below RECIPE_DIR's parent, so it unpacks
+into ``~/.cache/diffudepgrasp/recipe``.
 """
 import argparse
 import io
@@ -17,6 +18,9 @@ import tarfile
 from pathlib import Path
 
 import torch
+
+REBUILT = {"round0", "hover"}
+"""The expert's stores: a resume collects them again from their seeds, identical, faster than they travel."""
 
 
 def steps_due(recipe: Path, round_dir: str) -> int:
@@ -37,7 +41,7 @@ def travels(rel: Path, stores: set[str], new: bool | None) -> bool:
         return False
     if rel.parts[0] == "data":
         store = rel.parts[1].removesuffix(".zarr")
-        return store in stores or bool(new and not store.startswith("held_out"))
+        return store in stores or bool(new and store not in REBUILT and not store.startswith("held_out"))
     return new is not False
 
 
