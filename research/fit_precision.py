@@ -1,0 +1,69 @@
+"""Seconds per fit step of the recipe's depth student in fp32 and under bf16 autocast, side by side on this
+machine (not part of the product; the recipe fits in fp32).
+
+    python research/fit_precision.py [--batch 512] [--threads 2] [--repeats 4]
+
+Random inputs of the recipe's shapes (width 16, 3 stacked 96 x 128 frames, shift 4, near loss 1); the two
+precisions alternate so that a busy machine slows both alike; medians printed.
+"""
+
+import argparse
+import statistics
+import time
+
+import torch
+
+from trainer.student.config import StudentConfig
+from trainer.student.ddim import training_scheduler
+from trainer.student.distill import DistillConfig, device, losses
+from trainer.student.model import PerceptionStudent
+from trainer.student.steps import StepBatch
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--batch", type=int, default=512)
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--repeats", type=int, default=4)
+    a = p.parse_args()
+    torch.set_num_threads(a.threads)
+    dev = device()
+    cfg = StudentConfig(perception="depth", width=16, head_dims=(32, 64, 128), state_features=128,
+                        prediction="v_prediction", exec_horizon=4)
+    sch = training_scheduler(100, "v_prediction")
+    sch.alphas_cumprod = sch.alphas_cumprod.to(dev)
+    gen = torch.Generator(device=dev).manual_seed(0)
+    b = a.batch
+    batch = StepBatch(torch.rand(b, 3, 96, 128, device=dev), torch.rand(b, 8, device=dev),
+                      torch.rand(b, 12, device=dev) * 2 - 1, torch.rand(b, 16, 8, device=dev))
+    fits = {}
+    for name in ("fp32", "bf16"):
+        net = PerceptionStudent(cfg).to(dev)
+        fits[name] = (net, torch.optim.AdamW(net.parameters(), 3e-4))
+    sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
+
+    def step(name: str) -> float:
+        net, optim = fits[name]
+        sync()
+        began = time.perf_counter()
+        with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=name == "bf16"):
+            loss, _ = losses(net, sch, batch, gen, DistillConfig(shift_px=4, near_loss=1))
+        optim.zero_grad()
+        loss.backward()
+        optim.step()
+        sync()
+        return time.perf_counter() - began
+
+    times = {name: [] for name in fits}
+    for name in fits:
+        step(name)  # warm-up
+    for _ in range(a.repeats):
+        for name in fits:
+            times[name].append(step(name))
+    medians = {name: statistics.median(t) for name, t in times.items()}
+    print({**{f"{k}_s_per_step": round(v, 3) for k, v in medians.items()},
+           "bf16_speedup": round(medians["fp32"] / medians["bf16"], 2), "device": str(dev), "batch": b})
+
+
+if __name__ == "__main__":
+    main()
