@@ -1,13 +1,15 @@
 """Seconds per fit step of the recipe's depth student in fp32 and under bf16 autocast, side by side on this
-machine (not part of the product; the recipe fits in fp32).
+machine, CPU or GPU (not part of the product; the recipe fits in fp32). ``research/device/run.sh`` sizes
+round 0's fit by its fp32 figure, ``research/device/probe.sh`` runs it by batch size on the device.
 
-    python research/fit_precision.py [--batch 512] [--threads 2] [--repeats 4]
+    python research/fit_precision.py [--width 16] [--batch 512] [--threads 2] [--repeats 4]
 
-Random inputs of the recipe's shapes (width 16, 3 stacked 96 x 128 frames, shift 4, near loss 1); the two
-precisions alternate so that a busy machine slows both alike; medians printed.
+Random inputs of the recipe's shapes (3 stacked 96 x 128 frames, shift 4, near loss 1); the two precisions
+alternate so that a busy machine slows both alike; medians printed as one JSON line.
 """
 
 import argparse
+import json
 import statistics
 import time
 
@@ -22,13 +24,14 @@ from trainer.student.steps import StepBatch
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--width", type=int, default=16, help="the student's --width")
     p.add_argument("--batch", type=int, default=512)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--repeats", type=int, default=4)
     a = p.parse_args()
     torch.set_num_threads(a.threads)
     dev = device()
-    cfg = StudentConfig(perception="depth", width=16, head_dims=(32, 64, 128), state_features=128,
+    cfg = StudentConfig(perception="depth", width=a.width, head_dims=(32, 64, 128), state_features=128,
                         prediction="v_prediction", exec_horizon=4)
     sch = training_scheduler(100, "v_prediction")
     sch.alphas_cumprod = sch.alphas_cumprod.to(dev)
@@ -61,8 +64,9 @@ def main() -> None:
         for name in fits:
             times[name].append(step(name))
     medians = {name: statistics.median(t) for name, t in times.items()}
-    print({**{f"{k}_s_per_step": round(v, 3) for k, v in medians.items()},
-           "bf16_speedup": round(medians["fp32"] / medians["bf16"], 2), "device": str(dev), "batch": b})
+    print(json.dumps({**{f"{k}_s_per_step": round(v, 4) for k, v in medians.items()},
+                      "bf16_speedup": round(medians["fp32"] / medians["bf16"], 2), "device": str(dev),
+                      "width": a.width, "batch": b}))
 
 
 if __name__ == "__main__":

@@ -28,8 +28,7 @@ def steps_due(recipe: Path, round_dir: str) -> int:
     return settings["fit_steps"] if round_dir == "round0" else settings["round_steps"]
 
 
-def slim(path: Path) -> bytes:
-    c = torch.load(path, map_location="cpu", weights_only=True)
+def slim(c: dict) -> bytes:
     buf = io.BytesIO()
     torch.save({**c, "model": c["ema"], "optimizer": None}, buf)  # shared tensors are saved once
     return buf.getvalue()
@@ -53,11 +52,11 @@ def pack(recipe: Path, out: Path, stores: set[str], since: float | None) -> None
             if path.is_dir() or not travels(path.relative_to(recipe), stores, new):
                 continue
             if path.name == "ckpt.pt":
-                step = torch.load(path, map_location="cpu", weights_only=True)["step"]
-                if step < steps_due(recipe, path.parent.name):
-                    print(f"{name}: step {step}, unfinished: stays behind")
+                ckpt = torch.load(path, map_location="cpu", weights_only=True)
+                if ckpt["step"] < steps_due(recipe, path.parent.name):
+                    print(f"{name}: step {ckpt['step']}, unfinished: stays behind")
                     continue
-                data = slim(path)
+                data = slim(ckpt)
                 info = tarfile.TarInfo(name)
                 info.size = len(data)
                 tar.addfile(info, io.BytesIO(data))

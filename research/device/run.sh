@@ -45,30 +45,10 @@ if [ -f /tmp/round0.log ]; then  # the background demos: wait for them (the reci
     echo "round 0 demos ready after $(( $(date +%s) - T0 ))s"; tail -c 300 /tmp/round0.log; echo
 fi
 render
-[ -z "$FIT0_STEPS" ] && RATE=$(python3 - "$@" <<'PY'
-import sys, time, torch
-from trainer.student.config import StudentConfig
-from trainer.student.model import PerceptionStudent
-from trainer.student.distill import DistillConfig, device, losses
-from trainer.student.ddim import training_scheduler
-from trainer.student.steps import StepBatch
-a = sys.argv[1:]
-get = lambda k, d: a[a.index(k) + 1] if k in a else d
-cfg = StudentConfig(perception="depth", width=int(get("--width", 16)), head_dims=(32, 64, 128), state_features=128,
-                    prediction="v_prediction", exec_horizon=4)
-B, dev = int(get("--batch", 128)), device()
-net = PerceptionStudent(cfg).to(dev); opt = torch.optim.AdamW(net.parameters(), 3e-4)
-sch = training_scheduler(100, "v_prediction"); sch.alphas_cumprod = sch.alphas_cumprod.to(dev)
-gen = torch.Generator(device=dev).manual_seed(0)
-b = StepBatch(torch.rand(B, 3, 96, 128, device=dev), torch.rand(B, 8, device=dev), torch.rand(B, 12, device=dev) * 2 - 1,
-              torch.rand(B, 16, 8, device=dev))
-sync = torch.cuda.synchronize if dev.type == "cuda" else (lambda: None)
-for i in range(30):
-    if i == 10: sync(); t = time.perf_counter()
-    loss, _ = losses(net, sch, b, gen, DistillConfig(shift_px=4)); opt.zero_grad(); loss.backward(); opt.step()
-sync(); print(round(20 / (time.perf_counter() - t), 2))
-PY
-)
+get() { local k=$1 d=$2; shift 2; while [ $# -gt 0 ]; do [ "$1" = "$k" ] && { echo "$2"; return; }; shift; done; echo "$d"; }
+[ -z "$FIT0_STEPS" ] && RATE=$(python3 research/fit_precision.py --width "$(get --width 16 "$@")" \
+    --batch "$(get --batch 128 "$@")" --threads "$(nproc)" --repeats 20 \
+    | python3 -c "import json, sys; print(round(1 / json.load(sys.stdin)['fp32_s_per_step'], 2))")
 [ -z "$FIT0_STEPS" ] && echo "fit rate ${RATE} it/s on $(nvidia-smi --query-gpu=name --format=csv,noheader 2>/dev/null || echo cpu)"
 FIT0=${FIT0_STEPS:-$(python3 -c "print(max(100, int($RATE * $FIT0_S)))")}  # FIT0_STEPS: a resume repeats its steps
 LEFT=$(( BUDGET - ($(date +%s) - T0) - 25 ))
