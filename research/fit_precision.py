@@ -1,6 +1,6 @@
 """Seconds per fit step of the recipe's depth student in fp32 and under bf16 autocast, side by side on this
-machine, CPU or GPU (not part of the product; the recipe fits in fp32). ``research/device/run.sh`` sizes
-round 0's fit by its fp32 figure, ``research/device/probe.sh`` runs it by batch size on the device.
+machine, CPU or GPU (``DistillConfig.precision``, the recipe's ``--precision``). ``research/device/run.sh``
+sizes round 0's fit by its fp32 figure, ``research/device/probe.sh`` runs it by batch size on the device.
 
     python research/fit_precision.py [--width 16] [--batch 512] [--threads 2] [--repeats 4]
 
@@ -17,7 +17,7 @@ import torch
 
 from trainer.student.config import StudentConfig
 from trainer.student.ddim import training_scheduler
-from trainer.student.distill import DistillConfig, device, losses
+from trainer.student.distill import DistillConfig, autocast, device, losses
 from trainer.student.model import PerceptionStudent
 from trainer.student.steps import StepBatch
 
@@ -49,8 +49,8 @@ def main() -> None:
         net, optim = fits[name]
         sync()
         began = time.perf_counter()
-        with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=name == "bf16"):
-            loss, _ = losses(net, sch, batch, gen, DistillConfig(shift_px=4, near_loss=1))
+        with autocast(dev, name):
+            loss, _ = losses(net, sch, batch, gen, DistillConfig(shift_px=4, near_loss=1, precision=name))
         optim.zero_grad()
         loss.backward()
         optim.step()

@@ -253,6 +253,42 @@ def test_one_bad_batch_moves_the_weights_no_further_than_the_clip_allows():
     assert norm > 1e3 and float(moved.norm()) == pytest.approx(0.5, rel=1e-4)
 
 
+def test_a_bf16_fit_step_computes_the_fp32_loss_to_within_bf16s_precision():
+    """Under ``precision="bf16"`` the network runs in bf16 (the loss differs from fp32's on the same batch and
+    noise) while its terms come back fp32 and within a few per cent; the weights stay fp32."""
+    from trainer.student.config import StudentConfig
+    from trainer.student.ddim import training_scheduler
+    from trainer.student.distill import DistillConfig, autocast, losses
+    from trainer.student.model import PerceptionStudent
+    from trainer.student.steps import StepBatch
+
+    torch.manual_seed(0)
+    net = PerceptionStudent(StudentConfig(perception="depth", width=8, head_dims=(16, 32), state_features=16,
+                                          step_features=16, prediction="v_prediction"))
+    scheduler = training_scheduler(100, "v_prediction")
+    b = 16
+    batch = StepBatch(torch.rand(b, 3, 96, 128), torch.rand(b, 8), torch.rand(b, 12) * 2 - 1,
+                      torch.rand(b, 16, 8))
+    totals = {}
+    for precision in ("fp32", "bf16"):
+        cfg = DistillConfig(shift_px=2, near_loss=1, precision=precision)
+        with autocast(torch.device("cpu"), precision):
+            loss, terms = losses(net, scheduler, batch, torch.Generator().manual_seed(1), cfg)
+        assert loss.dtype == torch.float32 and set(terms) == {"facts", "near", "keypoints", "denoise"}
+        totals[precision] = float(loss.detach())
+    assert totals["bf16"] != totals["fp32"]
+    assert totals["bf16"] == pytest.approx(totals["fp32"], rel=0.05)
+    assert all(p.dtype == torch.float32 for p in net.parameters())
+
+
+def test_an_unknown_fit_precision_is_refused_in_one_line(capsys):
+    from trainer.student.recipe import main
+
+    assert main(["--out", "/nonexistent/recipe", "--precision", "fp8"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "precision must be one of fp32, bf16" in err and "\n" not in err
+
+
 def test_a_shifted_stack_carries_its_pixel_labels_along():
     """Every sample's marked pixel lands where its shifted labels say, in every frame of its stack, and the
     offset label (the object from the hand) is left as it was."""

@@ -119,6 +119,8 @@ class RecipeConfig:
     """Rollout processes (collection and evaluation)."""
     threads: int = 0
     """torch threads of the fits on the CPU (0 = torch's default; 1 beside busy rollout workers)."""
+    precision: str = "fp32"
+    """The fits' forward arithmetic, fp32 or bf16 (``DistillConfig.precision``)."""
     curve_episodes: int = 30
     eval_episodes: int = 180
     seed: int = 0
@@ -135,7 +137,7 @@ class RecipeConfig:
 
     def distill(self, steps: int) -> DistillConfig:
         return DistillConfig(steps=steps, batch=self.batch, lr=self.lr, shift_px=self.shift_px,
-                             near_loss=self.near_loss, seed=self.seed)
+                             near_loss=self.near_loss, precision=self.precision, seed=self.seed)
 
 
 def default_home() -> Path:
@@ -367,7 +369,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     cfg = from_args(RecipeConfig, args)
     try:
-        cfg.student()
+        cfg.student(), cfg.distill(cfg.fit_steps)
         if cfg.head and cfg.perception != "depth":
             raise ValueError("--head composes a depth student's perception with a privileged head: it needs "
                              "--perception depth")
