@@ -41,12 +41,19 @@ class UnrolledPolicy(nn.Module):
         return self.policy.action_norm.unnormalise(x) * self.robot_scale
 
 
-def portable(text: str) -> str:
-    """``text`` with paths under the working directory made relative and those under the home folder
-    written from ``~``: a shipped file names no machine's absolute paths."""
+def portable(value):
+    """``value`` (a string, or a dict or list holding strings at any depth) with paths under the working
+    directory made relative and those under the home folder written from ``~``: a shipped file names no
+    machine's absolute paths (a composed student's record nests its two parts' commands)."""
+    if isinstance(value, dict):
+        return {k: portable(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [portable(v) for v in value]
+    if not isinstance(value, str):
+        return value
     for root, short in ((Path.cwd(), ""), (Path.home(), "~" + os.sep)):
-        text = text.replace(f"{root}{os.sep}", short)
-    return text
+        value = value.replace(f"{root}{os.sep}", short)
+    return value
 
 
 def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path,
@@ -58,7 +65,7 @@ def policy_metadata(ckpt: Checkpoint, ddim_steps: int, ckpt_path: Path,
         ddim_steps=ddim_steps, ddim_spacing=spacing, state_dim=cfg.state_dim, action_dim=cfg.action_dim,
         normalisation={"state": net.state_norm.summary(), "action": net.action_norm.summary(),
                        "action_units": "env [-1, 1]; joints x action_scale in the graph output"},
-        training_data={**{k: portable(v) if isinstance(v, str) else v for k, v in info.data.items()},
+        training_data={**portable(info.data),
                        "checkpoint": portable(str(Path(ckpt_path).resolve())),
                        "checkpoint_sha256": sha256(ckpt_path), "train_step": ckpt.step,
                        "student_config": cfg.to_json()},

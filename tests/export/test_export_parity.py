@@ -152,3 +152,5 @@ def test_metadata_names_no_absolute_path_under_the_working_or_home_folder(monkey
     home = Path.home()
     text = f"{tmp_path}/runs/ckpt.pt --init {home}/.cache/x.pt /elsewhere/y.pt"
     assert portable(text) == "runs/ckpt.pt --init ~/.cache/x.pt /elsewhere/y.pt"
+    nested = {"composed": {"head": {"recipe": f"{home}/.cache/m0", "round": 0}}, "argv": [f"{tmp_path}/a.pt"]}
+    assert portable(nested) == {"composed": {"head": {"recipe": "~/.cache/m0", "round": 0}}, "argv": ["a.pt"]}
