@@ -120,7 +120,7 @@ class RecipeConfig:
     threads: int = 0
     """torch threads of the fits on the CPU (0 = torch's default; 1 beside busy rollout workers)."""
     precision: str = "fp32"
-    """The fits' forward arithmetic, fp32 or bf16 (``DistillConfig.precision``)."""
+    """The fits' forward arithmetic, fp32 or bf16 (``DistillConfig.precision``; a resume may change it)."""
     curve_episodes: int = 30
     eval_episodes: int = 180
     seed: int = 0
@@ -308,8 +308,11 @@ class Recipe:
             f.write(line + "\n")
 
 
-RESUMABLE = {"workers", "threads", "curve_episodes", "eval_episodes", "rounds"}
-"""Settings a resume may change: how the work is spread, how much is measured, how many more rounds."""
+RESUMABLE = {"workers", "threads", "precision", "curve_episodes", "eval_episodes", "rounds"}
+"""Settings a resume may change: how the work is spread and computed, how much is measured, how many more
+rounds. Precision is one: round 4 of the same recipe fitted in bf16 and in fp32 from the same round 3, same
+data and seeds, grasped 78.3 / 61.7 % against 75.6 / 65.0 % (paired 11 / 6 seen, 8 / 14 unseen; neither
+clears)."""
 
 
 def export(ckpt: Path, out: Path, ddim_steps: int, head: Path | None = None) -> None:
