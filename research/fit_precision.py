@@ -17,7 +17,7 @@ import torch
 
 from trainer.student.config import StudentConfig
 from trainer.student.ddim import training_scheduler
-from trainer.student.distill import DistillConfig, autocast, device, losses
+from trainer.student.distill import DistillConfig, device, losses
 from trainer.student.model import PerceptionStudent
 from trainer.student.steps import StepBatch
 
@@ -49,8 +49,7 @@ def main() -> None:
         net, optim = fits[name]
         sync()
         began = time.perf_counter()
-        with autocast(dev, name):
-            loss, _ = losses(net, sch, batch, gen, DistillConfig(shift_px=4, near_loss=1))
+        loss, _ = losses(net, sch, batch, gen, DistillConfig(shift_px=4, near_loss=1, precision=name))
         optim.zero_grad()
         loss.backward()
         optim.step()

@@ -86,14 +86,15 @@ def device() -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
-def autocast(dev: torch.device, precision: str):
-    """The context a fit's forward pass runs in for ``precision`` (a no-op for fp32)."""
-    return torch.autocast(dev.type, dtype=torch.bfloat16, enabled=precision == "bf16")
-
-
 def losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Generator,
            cfg: DistillConfig) -> tuple[torch.Tensor, dict[str, float]]:
-    """The total loss of ``batch`` and its terms, in fp32 whatever precision the network ran in."""
+    """The total loss of ``batch`` and its terms, the network run in ``cfg.precision``, the losses in fp32."""
+    with torch.autocast(gen.device.type, dtype=torch.bfloat16, enabled=cfg.precision == "bf16"):
+        return _losses(net, scheduler, batch, gen, cfg)
+
+
+def _losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Generator,
+            cfg: DistillConfig) -> tuple[torch.Tensor, dict[str, float]]:
     clean = net.action_norm.normalise(batch.chunk)
     noise = torch.randn(clean.shape, generator=gen, device=gen.device)
     k = torch.randint(0, scheduler.config.num_train_timesteps, (clean.shape[0],), generator=gen,
@@ -199,8 +200,7 @@ def distill(steps: LabelledSteps, out: Path, model_cfg: StudentConfig, cfg: Dist
         for group in optim.param_groups:
             group["lr"] = cfg.lr * lr_factor(step, cfg)
         batch = steps.batch(torch.randint(0, len(steps), (cfg.batch,), generator=sampler))
-        with autocast(dev, cfg.precision):
-            loss, terms = losses(net, scheduler, batch, gen, cfg)
+        loss, terms = losses(net, scheduler, batch, gen, cfg)
         terms["grad_norm"] = optimise(net, optim, loss, cfg.max_grad_norm)
         ema_update(ema, net, step, cfg.ema_max)
         ckpt.losses.append(terms["denoise"])
