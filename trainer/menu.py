@@ -8,9 +8,11 @@ loads only when its command runs, so ``ddg generate`` needs no training code. As
 from __future__ import annotations
 
 import importlib
+import shlex
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 
 def call_with_argv(function: Callable, argv: list[str], prog: str, description: str) -> int | None:
@@ -56,3 +58,13 @@ def load(target: str) -> Callable:
     """The function named "module:function"."""
     module, _, function = target.partition(":")
     return getattr(importlib.import_module(module), function)
+
+
+def command_line(argv: list[str] | None = None) -> str:
+    """The running command as a user would type it again, for a result's record: ``python -m trainer ...``,
+    not the path of the package's ``__main__.py`` that ``sys.argv[0]`` holds under ``-m``."""
+    argv = sys.argv if argv is None else argv
+    program = Path(argv[0])
+    if program.name == "__main__.py":
+        return shlex.join(["python", "-m", program.parent.name, *argv[1:]])
+    return shlex.join(argv)

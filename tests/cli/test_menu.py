@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from trainer.menu import Menu, load
+from trainer.menu import Menu, command_line, load
 
 
 class Refused(ValueError):
@@ -80,3 +80,9 @@ def test_every_command_of_every_menu_loads_and_answers_help(menu, capsys) -> Non
             status = stop.code
         assert status in (0, None), name
         assert capsys.readouterr().out.startswith(f"usage: {menu.prog} {name}"), name
+
+
+def test_command_line_records_a_module_run_as_the_user_types_it():
+    argv = ["/home/u/repo/trainer/__main__.py", "student", "recipe", "--name", "a b"]
+    assert command_line(argv) == "python -m trainer student recipe --name 'a b'"
+    assert command_line(["/usr/bin/script.py", "--x", "1"]) == "/usr/bin/script.py --x 1"

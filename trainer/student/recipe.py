@@ -38,6 +38,7 @@ from runtime.preprocess import DepthSpec
 from trainer.argspec import add_dataclass_args, from_args
 from trainer.dataset import DatasetError, DemoStore
 from trainer.eval.success import evaluate
+from trainer.menu import command_line
 from trainer.sim.env import EnvConfig
 from trainer.student import checkpoint
 from trainer.student.checkpoint import TrainingInfo
@@ -200,7 +201,7 @@ class Recipe:
             info = TrainingInfo(depth_spec=data.spec, action_scale=self.env.action_scale,
                                 control_rate_hz=self.env.control_rate_hz, trained=True,
                                 data={"recipe": str(self.out), "round": r, "steps": len(data),
-                                      "command": " ".join(sys.argv)})
+                                      "command": command_line()})
             init = None if r == 0 else self.run_dir(r - 1) / CKPT_NAME
             self._log(f"round {r} fit", distill(data, self.run_dir(r), c.student(), c.distill(steps), info,
                                                 init))

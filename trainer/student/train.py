@@ -26,6 +26,7 @@ from tqdm import tqdm
 from trainer.argspec import add_dataclass_args, from_args
 from trainer.dataset import DEPTH_SOURCES, DatasetError, sizes
 from trainer.diffusion import training_target
+from trainer.menu import command_line
 from trainer.student import checkpoint
 from trainer.student.checkpoint import Checkpoint, TrainingInfo
 from trainer.student.config import StudentConfig
@@ -146,7 +147,7 @@ def start_or_resume(cfg: FitConfig, model_cfg: StudentConfig, data: DemoDataset)
         return ckpt
     info = TrainingInfo(depth_spec=data.spec, action_scale=data.action_scale,
                         control_rate_hz=data.control_rate_hz, trained=True,
-                        data={**fingerprint, "command": " ".join(sys.argv)})
+                        data={**fingerprint, "command": command_line()})
     if cfg.init:
         return warm_start(Path(cfg.init), model_cfg, info, data)
     ckpt = checkpoint.fresh(model_cfg, info, seed=cfg.seed)
