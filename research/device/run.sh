@@ -2,8 +2,9 @@
 # Device run of `trainer student recipe` (not part of the product): carried wheels and GL loaders, the cache files
 # carried under .devsite/cache (e.g. M0's checkpoint for --head) put where they are here, a recipe folder carried
 # in parts (research/device/pack.py, split; one part under .stash<k>/ a call, the machine kept warm between
-# calls) unpacked, a probe of the GPU's fit rate that sizes round 0's fit to FIT0_S seconds (FIT0_STEPS: a resume
-# repeats its steps), then the recipe, stopped in time to bring back what a CPU resume needs under $OUT.
+# calls) unpacked, a probe of the GPU's fit rate in the recipe's --precision that sizes round 0's fit to FIT0_S
+# seconds (FIT0_STEPS: a resume repeats its steps), then the recipe, stopped in time to bring back what a CPU
+# resume needs under $OUT.
 #   usage: research/device/run.sh BUDGET_S FIT0_S ROUND_STEPS NAME [recipe flags]
 #   BUDGET_S 0: only set up and keep the carried part; PRECOLLECT=1 also collects round 0's demos in the
 #   background from NAME's recipe.json (the largest store: 15 workers collect it faster than it travels).
@@ -48,7 +49,7 @@ render
 get() { local k=$1 d=$2; shift 2; while [ $# -gt 0 ]; do [ "$1" = "$k" ] && { echo "$2"; return; }; shift; done; echo "$d"; }
 [ -z "$FIT0_STEPS" ] && RATE=$(python3 research/fit_precision.py --width "$(get --width 16 "$@")" \
     --batch "$(get --batch 128 "$@")" --threads "$(nproc)" --repeats 20 \
-    | python3 -c "import json, sys; print(round(1 / json.load(sys.stdin)['fp32_s_per_step'], 2))")
+    | python3 -c "import json, sys; print(round(1 / json.load(sys.stdin)['$(get --precision fp32 "$@")_s_per_step'], 2))")
 [ -z "$FIT0_STEPS" ] && echo "fit rate ${RATE} it/s on $(nvidia-smi --query-gpu=name --format=csv,noheader 2>/dev/null || echo cpu)"
 FIT0=${FIT0_STEPS:-$(python3 -c "print(max(100, int($RATE * $FIT0_S)))")}  # FIT0_STEPS: a resume repeats its steps
 LEFT=$(( BUDGET - ($(date +%s) - T0) - 25 ))
