@@ -15,6 +15,7 @@ from runtime.preprocess import FrameStack, normalise
 from trainer.dataset import DemoStore
 from trainer.sim.env import OBJECT_FROM_HAND, EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, HAND_PX, OBJECT_PX, OFFSET, SIZE, frame_labels
+from trainer.student import checkpoint
 from trainer.student.dagger import RoundSpec, chunks_ahead, collect_round
 from trainer.teacher.scripted import ReactiveExpert
 
@@ -166,11 +167,14 @@ def test_the_recipe_resumes_without_redoing_finished_stages(tmp_path, capsys):
     summary = json.loads((tmp_path / "r" / "fit" / "round1" / "eval_seen.json").read_text())
     assert summary["episodes"] == 1 and summary["policy"].endswith("round1/ckpt.pt")
     more = [a if a != "1" or base[i - 1] != "--rounds" else "2" for i, a in enumerate(base)]
-    # one more round, fitted in bf16 (how it is computed, which a resume may change): only its stages run
-    assert recipe_main([*more, "--head-dims", "16", "32", "--precision", "bf16"]) == 0
+    # one more round, fitted in bf16 and longer (which a resume may change): only its stages run, and the
+    # measured rounds keep their weights
+    longer = [a if base[i - 1] != "--round-steps" else "3" for i, a in enumerate(more)]
+    assert recipe_main([*longer, "--head-dims", "16", "32", "--precision", "bf16"]) == 0
     entries = [json.loads(line) for line in (tmp_path / "r" / "log.jsonl").read_text().splitlines()]
     assert [e["stage"] for e in entries[len(log):]] == ["round 2 data", "round 2 fit", "round 2 held-out"]
-    assert entries[len(log) + 1]["precision"] == "bf16"
+    assert entries[len(log) + 1]["precision"] == "bf16" and entries[len(log) + 1]["steps"] == 3
+    assert checkpoint.load(tmp_path / "r" / "fit" / "round1" / "ckpt.pt").step == 2
     assert json.loads((tmp_path / "r" / "fit" / "round2" / "eval_seen.json").read_text())["policy"].endswith(
         "round2/ckpt.pt")
     assert (tmp_path / "r" / "fit" / "round1" / "eval_seen.json").read_text() == json.dumps(summary, indent=2)
