@@ -17,7 +17,7 @@ Artifacts live in ``--out`` (default: ``$DIFFUDEPGRASP_HOME/recipe/NAME``, else
 ``~/.cache/diffudepgrasp/recipe/NAME``), outside any checkout, so a fresh clone resumes where the last one
 stopped: each stage is skipped once its output is complete, and a stage cut off half way resumes (stores from
 their last episode, fits from their last checkpoint). ``recipe.json`` there records the settings, which a
-resume must repeat.
+resume must repeat, except those in ``RESUMABLE`` (workers, precision, more rounds, longer rounds to come...).
 """
 
 from __future__ import annotations
