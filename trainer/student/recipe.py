@@ -192,7 +192,7 @@ class Recipe:
             self._log("hover data", tally)
 
     def fit(self, r: int) -> None:
-        if (self.run_dir(r) / "held_out.json").is_file():
+        if self.curve_result(r).is_file():
             return  # the curve measured it: what came after rests on these weights, whatever steps are asked
         c = self.cfg
         steps = c.fit_steps if r == 0 else c.round_steps
@@ -238,7 +238,7 @@ class Recipe:
         c = self.cfg
         result = evaluate(self.learner(r), GROUPS["seen"], c.curve_episodes, seed=CURVE_SEED,
                           workers=c.workers)
-        (self.run_dir(r) / "held_out.json").write_text(json.dumps(result, indent=2))
+        self.curve_result(r).write_text(json.dumps(result, indent=2))
         store = DemoStore.open(self.store(r))
         rows.append({"round": r, "steps": sum(DemoStore.open(s).n_steps for s in self.stores(r)),
                      "round_success": round(store.attrs["succeeded"] / max(1, store.attrs["attempted"]), 4),
@@ -272,6 +272,10 @@ class Recipe:
 
     def run_dir(self, r: int) -> Path:
         return self.out / "fit" / f"round{r}"
+
+    def curve_result(self, r: int) -> Path:
+        """Round ``r``'s learner measured by the curve: written once its fit is final."""
+        return self.run_dir(r) / "held_out.json"
 
     def onnx(self, r: int) -> Path:
         return self.run_dir(r) / "student.onnx"
