@@ -5,6 +5,7 @@ parity, and the recipe resumes without redoing finished stages."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -228,11 +229,11 @@ def test_a_depth_recipe_runs_its_stages_and_measures_its_readout(tmp_path, with_
 
     out, head = tmp_path / "d", tmp_path / "m0.pt"
     assert student_main(["init", "--out", str(head), "--perception", "privileged", *TINY]) == 0
-    assert recipe_main(["--out", str(out), "--perception", "depth", "--demos", "2", "--rounds", "1",
-                        "--round-episodes", "1", "--fit-steps", "2", "--round-steps", "1", "--workers", "1",
-                        "--curve-episodes", "1", "--eval-episodes", "1", "--width", "8", "--head-dims", "16",
-                        "32", "--state-features", "16", "--batch", "4",
-                        *(["--head", str(head)] if with_head else [])]) == 0
+    args = ["--out", str(out), "--perception", "depth", "--demos", "2", "--rounds", "1",
+            "--round-episodes", "1", "--fit-steps", "2", "--round-steps", "1", "--workers", "1",
+            "--curve-episodes", "1", "--eval-episodes", "1", "--width", "8", "--head-dims", "16", "32",
+            "--state-features", "16", "--batch", "4", *(["--head", str(head)] if with_head else [])]
+    assert recipe_main(args) == 0
     for r in (0, 1):
         assert (out / "fit" / f"round{r}" / "student.onnx").is_file()
         assert (out / "fit" / f"round{r}" / "composed.pt").is_file() == with_head
@@ -240,6 +241,13 @@ def test_a_depth_recipe_runs_its_stages_and_measures_its_readout(tmp_path, with_
         assert readout["frames"] > 0 and readout["all"]["offset_cm_median"] > 0
         assert set(readout["near_by_kind"]) <= set(GROUPS["seen"])
     assert DemoStore.open(out / "data" / "round1.zarr").attrs["learner"].startswith("student:")
+    # a round fitted elsewhere comes back without its ONNX file or held-out episodes (research/device):
+    # the resume exports it again and collects nothing its measured readout no longer needs
+    (out / "fit" / "round1" / "student.onnx").unlink()
+    shutil.rmtree(out / "data" / "held_out_round1.zarr")
+    assert recipe_main(args) == 0
+    assert (out / "fit" / "round1" / "student.onnx").is_file()
+    assert not (out / "data" / "held_out_round1.zarr").exists()
     assert json.loads((out / "fit" / "round1" / "eval_unseen.json").read_text())["objects"] == list(
         GROUPS["unseen"])
 

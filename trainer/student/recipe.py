@@ -167,8 +167,8 @@ class Recipe:
                 self.readout(r - 1, self.store(r))
             self.fit(r)
             self.curve(r)
-        if self.cfg.perception == "depth":
-            self.readout(self.cfg.rounds, self.held_out())
+        if self.cfg.perception == "depth" and not self.readout_result(self.cfg.rounds).is_file():
+            self.readout(self.cfg.rounds, self.held_out())  # the held-out episodes collected only for it
         return self.evaluate()
 
     # --- stages -------------------------------------------------------------------------------------
@@ -192,8 +192,14 @@ class Recipe:
             self._log("hover data", tally)
 
     def fit(self, r: int) -> None:
-        if self.curve_result(r).is_file():
-            return  # the curve measured it: what came after rests on these weights, whatever steps are asked
+        if not self.curve_result(r).is_file():  # measured by the curve: what came after rests on its weights,
+            self.train(r)                        # whatever steps are asked now
+        if self.cfg.perception == "depth" and not self.onnx(r).is_file():  # e.g. a round fitted on a GPU
+            export(self.run_dir(r) / CKPT_NAME, self.onnx(r), self.cfg.ddim_steps,
+                   Path(self.cfg.head) if self.cfg.head else None)
+
+    def train(self, r: int) -> None:
+        """Round ``r``'s weights: fitted from round ``r - 1``'s until they have the steps asked."""
         c = self.cfg
         steps = c.fit_steps if r == 0 else c.round_steps
         ckpt_path = self.run_dir(r) / CKPT_NAME
@@ -207,8 +213,6 @@ class Recipe:
             init = None if r == 0 else self.run_dir(r - 1) / CKPT_NAME
             self._log(f"round {r} fit", distill(data, self.run_dir(r), c.student(), c.distill(steps), info,
                                                 init))
-        if c.perception == "depth" and not self.onnx(r).is_file():
-            export(ckpt_path, self.onnx(r), c.ddim_steps, Path(c.head) if c.head else None)
 
     def held_out(self) -> Path:
         """The last student's own episodes (no expert steps), labelled but never trained on."""
@@ -223,7 +227,7 @@ class Recipe:
     def readout(self, r: int, store: Path) -> None:
         """Milestone M1 for round ``r``'s depth student: its readout's errors on ``store``, which holds the
         next round's (or the held-out) rollouts, frames it was not trained on."""
-        path = self.run_dir(r) / "readout.json"
+        path = self.readout_result(r)
         if self.cfg.perception != "depth" or path.is_file():
             return
         result = measure(self.run_dir(r) / CKPT_NAME, store, self.dev)
@@ -276,6 +280,9 @@ class Recipe:
     def curve_result(self, r: int) -> Path:
         """Round ``r``'s learner measured by the curve: written once its fit is final."""
         return self.run_dir(r) / "held_out.json"
+
+    def readout_result(self, r: int) -> Path:
+        return self.run_dir(r) / "readout.json"
 
     def onnx(self, r: int) -> Path:
         return self.run_dir(r) / "student.onnx"
