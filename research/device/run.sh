@@ -6,8 +6,9 @@
 # seconds (FIT0_STEPS: a resume repeats its steps), then the recipe, stopped in time to bring back what a CPU
 # resume needs under $OUT.
 #   usage: research/device/run.sh BUDGET_S FIT0_S ROUND_STEPS NAME [recipe flags]
-#   BUDGET_S 0: only set up and keep the carried part; PRECOLLECT=1 also collects round 0's demos in the
-#   background from NAME's recipe.json (the largest store: 15 workers collect it faster than it travels).
+#   BUDGET_S 0: only set up and keep the carried part; PRECOLLECT=1 also collects the hover episodes and round
+#   0's demos in the background from NAME's recipe.json (the largest stores: 15 workers collect them faster than
+#   they travel). Every call carries .devsite: an ignored folder not carried is removed there.
 BUDGET=$1; FIT0_S=$2; FITR=$3; NAME=$4; shift 4
 T0=$(date +%s)
 if command -v nvidia-smi > /dev/null && [ ! -f /tmp/site/.installed ]; then  # the device: loaders and wheels
@@ -34,7 +35,7 @@ if [ -n "$PRECOLLECT" ]; then
     setsid nohup bash -c "echo \$\$ > /tmp/round0.pid; python3 -c 'import json; from pathlib import Path
 from trainer.student.recipe import Recipe, RecipeConfig
 out = Path(\"$REC\"); cfg = RecipeConfig(**{**json.loads((out / \"recipe.json\").read_text()), \"workers\": 15})
-Recipe(out, cfg).collect(0)' && touch /tmp/round0.done" > /tmp/round0.log 2>&1 < /dev/null &
+r = Recipe(out, cfg); r.hover(); r.collect(0)' && touch /tmp/round0.done" > /tmp/round0.log 2>&1 < /dev/null &
     sleep 15; cat /tmp/round0.log
 fi
 [ "$BUDGET" = 0 ] && exit 0
