@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import time
 from pathlib import Path
@@ -45,7 +46,7 @@ def run_calibrate(args: argparse.Namespace) -> None:
 
     if args.episodes < 1:
         raise ValueError(f"--episodes must be at least 1, got {args.episodes}")
-    cmd = "python -m hil_sim.stereo " + " ".join(sys.argv[1:])
+    cmd = shlex.join(["python", "-m", "hil_sim.stereo", *sys.argv[1:]])  # as a user would type it again
     params, report = calibrate(args.real, StereoParams(), args.episodes)
     params.save(args.out, command=cmd, fits=report["fits"])
     fits = report["fits"]
