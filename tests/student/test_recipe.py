@@ -475,3 +475,28 @@ def test_training_kinds_are_chosen_by_objects_and_a_bad_one_is_refused_in_one_li
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: unknown object kind 'dragonfruit'") and "\n" not in err
     assert not (tmp_path / "x").exists()
+
+
+def test_the_fit_runs_the_encoder_channels_last_on_the_cpu_with_the_same_loss():
+    """``training_layout`` puts the convolutions channels-last (faster on the CPU) and changes no value: the
+    loss on the same batch and noise equals the contiguous layout's to float rounding."""
+    from trainer.student.config import StudentConfig
+    from trainer.student.ddim import training_scheduler
+    from trainer.student.distill import DistillConfig, losses, training_layout
+    from trainer.student.model import PerceptionStudent
+    from trainer.student.steps import StepBatch
+
+    torch.manual_seed(0)
+    cfg = StudentConfig(perception="depth", width=8, head_dims=(16, 32), state_features=16, step_features=16)
+    plain = PerceptionStudent(cfg)
+    fast = PerceptionStudent(cfg)
+    fast.load_state_dict(plain.state_dict())
+    fast = training_layout(fast)
+    conv = fast.perception.resnet.stem[0].weight
+    assert conv.is_contiguous(memory_format=torch.channels_last) and not conv.is_contiguous()
+    batch = StepBatch(torch.rand(8, 3, 96, 128), torch.rand(8, 8), torch.rand(8, 12) * 2 - 1,
+                      torch.rand(8, 16, 8))
+    scheduler, fit = training_scheduler(100, "epsilon"), DistillConfig(shift_px=2)
+    totals = [losses(net, scheduler, batch, torch.Generator().manual_seed(1), fit)[0].item()
+              for net in (plain, fast)]
+    assert totals[1] == pytest.approx(totals[0], rel=1e-5)
