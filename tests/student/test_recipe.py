@@ -500,3 +500,13 @@ def test_the_fit_runs_the_encoder_channels_last_on_the_cpu_with_the_same_loss():
     totals = [losses(net, scheduler, batch, torch.Generator().manual_seed(1), fit)[0].item()
               for net in (plain, fast)]
     assert totals[1] == pytest.approx(totals[0], rel=1e-5)
+
+
+def test_a_missing_head_is_refused_in_one_line_before_any_stage(tmp_path, capsys):
+    from trainer.student.recipe import main
+
+    out = tmp_path / "recipe"
+    assert main(["--out", str(out), "--head", str(tmp_path / "m0.pt"), "--hover-episodes", "2"]) == 2
+    err = capsys.readouterr().err
+    assert f"--head {tmp_path / 'm0.pt'}: no such checkpoint" in err and err.count("\n") == 1
+    assert not out.exists()

@@ -392,6 +392,9 @@ def main(argv: list[str] | None = None) -> int:
                              "--perception depth")
         if cfg.hover_episodes and not cfg.head:
             raise ValueError("--hover-episodes needs --head: the privileged head drives them")
+        if cfg.head and not Path(cfg.head).is_file():  # found now, not by the first worker that loads it
+            raise ValueError(f"--head {cfg.head}: no such checkpoint (M0 is a recipe of its own, "
+                             "--perception privileged: docs/student.md)")
         out = args.out or default_home() / "recipe" / args.name
         summary = Recipe(out, cfg).run()
     except (ValueError, DatasetError, OSError, subprocess.CalledProcessError) as exc:
