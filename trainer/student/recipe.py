@@ -28,7 +28,9 @@ import json
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
+from functools import partial
 from pathlib import Path
 
 import torch
@@ -164,11 +166,10 @@ class Recipe:
         for r in range(self.cfg.rounds + 1):
             self.collect(r)
             if r:
-                self.readout(r - 1, self.store(r))
+                self.readout(r - 1, partial(self.store, r))
             self.fit(r)
             self.curve(r)
-        if self.cfg.perception == "depth" and not self.readout_result(self.cfg.rounds).is_file():
-            self.readout(self.cfg.rounds, self.held_out())  # the held-out episodes collected only for it
+        self.readout(self.cfg.rounds, self.held_out)  # the held-out episodes collected only if it is not done
         return self.evaluate()
 
     # --- stages -------------------------------------------------------------------------------------
@@ -224,13 +225,14 @@ class Recipe:
                           workers=c.workers)
         return path
 
-    def readout(self, r: int, store: Path) -> None:
-        """Milestone M1 for round ``r``'s depth student: its readout's errors on ``store``, which holds the
-        next round's (or the held-out) rollouts, frames it was not trained on."""
+    def readout(self, r: int, store: Callable[[], Path]) -> None:
+        """Milestone M1 for round ``r``'s depth student: its readout's errors on the store ``store()`` gives
+        (called only if they are not measured yet), which holds the next round's (or the held-out) rollouts,
+        frames it was not trained on."""
         path = self.readout_result(r)
         if self.cfg.perception != "depth" or path.is_file():
             return
-        result = measure(self.run_dir(r) / CKPT_NAME, store, self.dev)
+        result = measure(self.run_dir(r) / CKPT_NAME, store(), self.dev)
         path.write_text(json.dumps(result, indent=1))
         self._log(f"round {r} readout", {k: v for k, v in result.items() if k not in ("checkpoint", "store")})
 
