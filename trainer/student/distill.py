@@ -158,7 +158,7 @@ def training_layout(net: PerceptionStudent) -> PerceptionStudent:
     """``net`` with its convolution weights channels-last when it sits on the CPU, so that its feature maps
     follow: oneDNN's kernels for that layout (the max-pool above all) are faster there. A width-32 fit step on
     2 cores, bf16: 1.63 against 2.18 s (fp32 3.79 against 4.23; width 16, bf16: 0.88 against 1.03; medians of
-    ``research/fit_precision.py --layouts``). The values, and so the checkpoints, are the same in either."""
+    ``research/fit_precision.py --layouts``). The values, and so the checkpoints, agree to float rounding."""
     return net.to(memory_format=torch.channels_last) if next(net.parameters()).device.type == "cpu" else net
 
 
