@@ -14,9 +14,10 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+from dataclasses import asdict
 from pathlib import Path
 
-from trainer.student.recipe import default_home
+from trainer.student.recipe import RecipeConfig, default_home
 
 
 def branch(source: Path, target: Path, round_: int, changes: dict) -> None:
@@ -25,7 +26,8 @@ def branch(source: Path, target: Path, round_: int, changes: dict) -> None:
     data = source / "data"
     if not ((source / "fit" / f"round{round_ - 1}").is_dir() and (data / f"round{round_}.zarr").is_dir()):
         raise SystemExit(f"error: {source} lacks round {round_ - 1}'s fit or round {round_}'s store")
-    settings = json.loads((source / "recipe.json").read_text())
+    defaults = json.loads(json.dumps(asdict(RecipeConfig())))  # settings added since the source was made
+    settings = {**defaults, **json.loads((source / "recipe.json").read_text())}
     unknown = set(changes) - set(settings)
     if unknown:
         raise SystemExit(f"error: no such recipe setting: {', '.join(sorted(unknown))}")

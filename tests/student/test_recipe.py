@@ -510,3 +510,32 @@ def test_a_missing_head_is_refused_in_one_line_before_any_stage(tmp_path, capsys
     err = capsys.readouterr().err
     assert f"--head {tmp_path / 'm0.pt'}: no such checkpoint" in err and err.count("\n") == 1
     assert not out.exists()
+
+
+def test_a_seen_share_draws_that_share_of_each_batch_from_the_seen_kinds(tmp_path):
+    """Steps know their episode's kind; with a seen share the fit draws the seen kinds' steps that often,
+    however few of them the stores hold."""
+    from trainer.student.distill import batch_weights
+    from trainer.student.steps import LabelledSteps
+
+    config = EnvConfig(objects=("cube", "shape03"), max_steps=3)
+    collect_round(tmp_path / "round0.zarr", config, RoundSpec(horizon=4), episodes=3, seed=11)
+    store = DemoStore.open(tmp_path / "round0.zarr")
+    steps = LabelledSteps([tmp_path / "round0.zarr"], obs_horizon=3, action_horizon=4, depth=False)
+    lengths = np.diff(store.episode_ends, prepend=0)
+    assert list(steps.kinds) == list(np.repeat(store.kinds, lengths))
+    kinds = np.array(["cube"] * 10 + ["shape03"] * 90)
+    assert batch_weights(kinds, None) is None
+    draws = torch.multinomial(batch_weights(kinds, 0.5), 20_000, replacement=True,
+                              generator=torch.Generator().manual_seed(0))
+    assert abs(float((draws < 10).float().mean()) - 0.5) < 0.02
+    with pytest.raises(ValueError, match="no seen kinds"):
+        batch_weights(np.array(["shape03"] * 5), 0.5)
+
+
+def test_a_seen_share_outside_0_1_is_refused_in_one_line(capsys):
+    from trainer.student.recipe import main
+
+    assert main(["--out", "/nonexistent/recipe", "--seen-share", "1.5"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "seen_share must be between 0 and 1" in err and "\n" not in err

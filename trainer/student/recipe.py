@@ -113,6 +113,8 @@ class RecipeConfig:
     near_loss: float = 0.0
     """Weight of the readout's offset error relative to the distance to the object
     (``DistillConfig.near_loss``)."""
+    seen_share: float | None = None
+    """The share of each fit's batches drawn from the seen kinds' steps (``DistillConfig.seen_share``)."""
     fine_stride: int = 8
     """The fine keypoints' stride, 8 or 4 (``StudentConfig.fine_stride``)."""
     geometric: bool = False
@@ -140,7 +142,8 @@ class RecipeConfig:
 
     def distill(self, steps: int) -> DistillConfig:
         return DistillConfig(steps=steps, batch=self.batch, lr=self.lr, shift_px=self.shift_px,
-                             near_loss=self.near_loss, precision=self.precision, seed=self.seed)
+                             near_loss=self.near_loss, seen_share=self.seen_share, precision=self.precision,
+                             seed=self.seed)
 
 
 def default_home() -> Path:

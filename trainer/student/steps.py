@@ -49,6 +49,8 @@ class LabelledSteps:
         self.state_np = np.concatenate([part["state"] for part in parts])
         self.labels_np = np.concatenate([part["labels"] for part in parts])
         self.chunk_np = np.concatenate([part["chunk"] for part in parts])
+        self.kinds = np.concatenate([part["kinds"] for part in parts])
+        """str [N]: the object kind of each step's episode."""
         back = np.arange(obs_horizon - 1, -1, -1)
         stacks = np.maximum(np.arange(len(start))[:, None] - back, start[:, None])
         self.stack_index = torch.from_numpy(stacks).to(self.device)
@@ -76,7 +78,8 @@ class LabelledSteps:
         part = {"spec": store.depth_spec, "state": np.asarray(root["data/state"][:n], np.float32),
                 "labels": np.asarray(root["data/labels"][:n], np.float32),
                 "chunk": np.asarray(root["data/chunk"][:n, :action_horizon], np.float32),
-                "start": np.repeat(ends - lengths, lengths), "depth_scale": float(store.attrs["depth_scale"])}
+                "start": np.repeat(ends - lengths, lengths), "kinds": np.repeat(store.kinds, lengths),
+                "depth_scale": float(store.attrs["depth_scale"])}
         if depth:
             part["frames"] = np.asarray(root["data/depth"][:n], np.uint16)
         return part
