@@ -533,9 +533,12 @@ def test_a_seen_share_draws_that_share_of_each_batch_from_the_seen_kinds(tmp_pat
         batch_weights(np.array(["shape03"] * 5), 0.5)
 
 
-def test_a_seen_share_outside_0_1_is_refused_in_one_line(capsys):
+def test_a_seen_share_outside_0_1_or_without_both_sorts_of_kinds_is_refused_in_one_line(capsys):
     from trainer.student.recipe import main
 
     assert main(["--out", "/nonexistent/recipe", "--seen-share", "1.5"]) == 2
     err = capsys.readouterr().err.strip()
     assert "seen_share must be between 0 and 1" in err and "\n" not in err
+    assert main(["--out", "/nonexistent/recipe", "--seen-share", "0.5", "--objects", "seen"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--objects seen holds only one sort" in err and "\n" not in err

@@ -65,7 +65,9 @@ class DistillConfig:
     """The share of each batch drawn from steps of seen-kind episodes (``hil_sim.objects.SEEN``); None draws
     every step alike. On ``--objects train`` (the 6 seen kinds and 24 shapes) the seen kinds hold ~20 % of
     the steps, a fifth of what a recipe on the seen kinds alone gives them: the lost ``s2k`` rounds 0-5, on
-    the seen kinds alone, read them to 0.64 cm near the object at round 4, ``s_dev`` on ``train`` 1.18 cm."""
+    the seen kinds alone, read them to 0.64 cm near the object at round 4, ``s_dev`` on ``train`` 1.18 cm. A
+    round refitted with 0.5 on the same data grasped 66.7 against 61.1 % seen (18 episodes won, 8 lost: not
+    cleared), its readout no better (``docs/history.md``, 2026-11-29)."""
     precision: str = "fp32"
     """The arithmetic of the fit's forward pass: fp32, or bf16 (``torch.autocast``: the weights, the optimiser
     and the losses stay fp32). On 2 CPU cores a recipe round's fit took 1.17 s a step in bf16 against 1.50 in

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import torch
 
-from hil_sim.objects import GROUPS, select_kinds
+from hil_sim.objects import GROUPS, SEEN, select_kinds
 from runtime.preprocess import DepthSpec
 from trainer.argspec import add_dataclass_args, from_args
 from trainer.dataset import DatasetError, DemoStore
@@ -395,6 +395,10 @@ def main(argv: list[str] | None = None) -> int:
         if cfg.head and cfg.perception != "depth":
             raise ValueError("--head composes a depth student's perception with a privileged head: it needs "
                              "--perception depth")
+        kinds = select_kinds(cfg.objects)
+        if cfg.seen_share is not None and len({k in SEEN for k in kinds}) < 2:
+            raise ValueError(f"--seen-share weighs the seen kinds against the others: --objects "
+                             f"{cfg.objects} holds only one sort (train holds both)")
         if cfg.hover_episodes and not cfg.head:
             raise ValueError("--hover-episodes needs --head: the privileged head drives them")
         if cfg.head and not Path(cfg.head).is_file():  # found now, not by the first worker that loads it
