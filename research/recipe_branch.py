@@ -14,10 +14,9 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-from dataclasses import asdict
 from pathlib import Path
 
-from trainer.student.recipe import RecipeConfig, default_home
+from trainer.student.recipe import default_home, stored_settings
 
 
 def branch(source: Path, target: Path, round_: int, changes: dict) -> None:
@@ -26,8 +25,7 @@ def branch(source: Path, target: Path, round_: int, changes: dict) -> None:
     data = source / "data"
     if not ((source / "fit" / f"round{round_ - 1}").is_dir() and (data / f"round{round_}.zarr").is_dir()):
         raise SystemExit(f"error: {source} lacks round {round_ - 1}'s fit or round {round_}'s store")
-    defaults = json.loads(json.dumps(asdict(RecipeConfig())))  # settings added since the source was made
-    settings = {**defaults, **json.loads((source / "recipe.json").read_text())}
+    settings = stored_settings(source / "recipe.json")
     unknown = set(changes) - set(settings)
     if unknown:
         raise SystemExit(f"error: no such recipe setting: {', '.join(sorted(unknown))}")

@@ -146,6 +146,12 @@ class RecipeConfig:
                              seed=self.seed)
 
 
+def stored_settings(path: Path) -> dict:
+    """A recipe's ``recipe.json``, with the defaults of the settings added since it was written."""
+    defaults = json.loads(json.dumps(asdict(RecipeConfig())))
+    return {**defaults, **json.loads(path.read_text())}
+
+
 def default_home() -> Path:
     """Where long-lived artifacts live: ``$DIFFUDEPGRASP_HOME``, else the user's cache directory."""
     home = os.environ.get("DIFFUDEPGRASP_HOME")
@@ -304,8 +310,7 @@ class Recipe:
         self.out.mkdir(parents=True, exist_ok=True)
         mine = json.loads(json.dumps(asdict(self.cfg)))
         if path.is_file():
-            defaults = json.loads(json.dumps(asdict(RecipeConfig())))  # for fields added since the file
-            kept = {**defaults, **json.loads(path.read_text())}
+            kept = stored_settings(path)
             changed = {k: (kept.get(k), v) for k, v in mine.items()
                        if k not in RESUMABLE and kept.get(k) != v}
             if changed:
@@ -395,8 +400,7 @@ def main(argv: list[str] | None = None) -> int:
         if cfg.head and cfg.perception != "depth":
             raise ValueError("--head composes a depth student's perception with a privileged head: it needs "
                              "--perception depth")
-        kinds = select_kinds(cfg.objects)
-        if cfg.seen_share is not None and len({k in SEEN for k in kinds}) < 2:
+        if cfg.seen_share is not None and len({k in SEEN for k in select_kinds(cfg.objects)}) < 2:
             raise ValueError(f"--seen-share weighs the seen kinds against the others: --objects "
                              f"{cfg.objects} holds only one sort (train holds both)")
         if cfg.hover_episodes and not cfg.head:
