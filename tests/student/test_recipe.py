@@ -168,14 +168,16 @@ def test_the_recipe_resumes_without_redoing_finished_stages(tmp_path, capsys):
     summary = json.loads((tmp_path / "r" / "fit" / "round1" / "eval_seen.json").read_text())
     assert summary["episodes"] == 1 and summary["policy"].endswith("round1/ckpt.pt")
     more = [a if a != "1" or base[i - 1] != "--rounds" else "2" for i, a in enumerate(base)]
-    # one more round, fitted in bf16 and longer (which a resume may change): only its stages run, and the
-    # measured rounds keep their weights
-    longer = [a if base[i - 1] != "--round-steps" else "3" for i, a in enumerate(more)]
+    # one more round, fitted in bf16, longer and on more episodes (which a resume may change): only its stages
+    # run, and the measured rounds keep their data and weights
+    longer = [a if base[i - 1] not in ("--round-steps", "--round-episodes") else "3"
+              for i, a in enumerate(more)]
     assert recipe_main([*longer, "--head-dims", "16", "32", "--precision", "bf16"]) == 0
     entries = [json.loads(line) for line in (tmp_path / "r" / "log.jsonl").read_text().splitlines()]
     assert [e["stage"] for e in entries[len(log):]] == ["round 2 data", "round 2 fit", "round 2 held-out"]
     assert entries[len(log) + 1]["precision"] == "bf16" and entries[len(log) + 1]["steps"] == 3
     assert checkpoint.load(tmp_path / "r" / "fit" / "round1" / "ckpt.pt").step == 2
+    assert [entries[i]["attempted"] for i in (3, len(log))] == [1, 3]  # round 1's store kept, round 2 longer
     assert json.loads((tmp_path / "r" / "fit" / "round2" / "eval_seen.json").read_text())["policy"].endswith(
         "round2/ckpt.pt")
     assert (tmp_path / "r" / "fit" / "round1" / "eval_seen.json").read_text() == json.dumps(summary, indent=2)

@@ -184,6 +184,8 @@ class Recipe:
     # --- stages -------------------------------------------------------------------------------------
     def collect(self, r: int) -> None:
         c = self.cfg
+        if self.curve_result(r).is_file():  # a measured round keeps its data, as it keeps its weights
+            return
         learner = "" if r == 0 else self.learner(r - 1)
         spec = RoundSpec(learner=learner, beta=c.beta * 0.5 ** (r - 1) if r else 0.0,
                          horizon=c.student().action_horizon)
@@ -332,9 +334,11 @@ class Recipe:
             f.write(line + "\n")
 
 
-RESUMABLE = {"workers", "threads", "precision", "curve_episodes", "eval_episodes", "rounds", "round_steps"}
+RESUMABLE = {"workers", "threads", "precision", "curve_episodes", "eval_episodes", "rounds", "round_steps",
+             "round_episodes"}
 """Settings a resume may change: how the work is spread and computed, how much is measured, how many more
-rounds and how long the rounds still to come fit (a round the curve has measured keeps its weights).
+rounds, and how many episodes the rounds still to come collect and how long they fit (a round the curve has
+measured keeps its data and weights).
 Precision is one: round 4 of the same recipe fitted in bf16 and in fp32 from the same round 3, same data and
 seeds, grasped 78.3 / 61.7 % against 75.6 / 65.0 % (paired 11 / 6 seen, 8 / 14 unseen; neither clears)."""
 
