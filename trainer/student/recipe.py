@@ -184,7 +184,7 @@ class Recipe:
     # --- stages -------------------------------------------------------------------------------------
     def collect(self, r: int) -> None:
         c = self.cfg
-        if self.curve_result(r).is_file():  # a measured round keeps its data, as it keeps its weights
+        if self.measured(r):
             return
         learner = "" if r == 0 else self.learner(r - 1)
         spec = RoundSpec(learner=learner, beta=c.beta * 0.5 ** (r - 1) if r else 0.0,
@@ -204,8 +204,8 @@ class Recipe:
             self._log("hover data", tally)
 
     def fit(self, r: int) -> None:
-        if not self.curve_result(r).is_file():  # measured by the curve: what came after rests on its weights,
-            self.train(r)                        # whatever steps are asked now
+        if not self.measured(r):
+            self.train(r)
         if self.cfg.perception == "depth" and not self.onnx(r).is_file():  # e.g. a round fitted on a GPU
             export(self.run_dir(r) / CKPT_NAME, self.onnx(r), self.cfg.ddim_steps,
                    Path(self.cfg.head) if self.cfg.head else None)
@@ -289,6 +289,11 @@ class Recipe:
 
     def run_dir(self, r: int) -> Path:
         return self.out / "fit" / f"round{r}"
+
+    def measured(self, r: int) -> bool:
+        """Whether the curve has measured round ``r``: then it keeps its data and weights, whatever episodes
+        and steps are asked now, since what came after rests on them."""
+        return self.curve_result(r).is_file()
 
     def curve_result(self, r: int) -> Path:
         """Round ``r``'s learner measured by the curve: written once its fit is final."""
