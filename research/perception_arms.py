@@ -7,7 +7,8 @@ same steps. Then each arm's readout is measured (``trainer.student.readout``) on
 exported, it is evaluated closed loop as ``trainer evaluate`` does. Prints and writes one JSON per arm.
 
     python research/perception_arms.py --init CKPT --stores S0 S1 ... --test NAME=STORE ... --out DIR \\
-        [--arms base=8 s4g=4g near=8:1] [--steps 2000] [--lr 1e-4] [--shift-px 0] [--episodes 60] [--head M0]
+        [--arms base=8 s4g=4g near=8:1] [--steps 2000] [--lr 1e-4] [--shift-px 0] [--episodes 60] \\
+        [--head M0] [--precision bf16] [--seen-share 0.5]
 
 An arm is NAME=STRIDE[g][:NEAR]: the fine keypoints' stride (8 or 4), g for the geometric readout inputs, and
 the weight of the near-weighted offset loss (``DistillConfig.near_loss``, default 0). With ``--head`` each arm
@@ -46,7 +47,8 @@ def arm_config(base: StudentConfig, spec: str) -> StudentConfig:
 def arm_distill(spec: str, args: argparse.Namespace) -> DistillConfig:
     near = spec.partition(":")[2]
     return DistillConfig(steps=args.steps, batch=args.batch, lr=args.lr, warmup=min(200, args.steps // 10),
-                         shift_px=args.shift_px, near_loss=float(near or 0))
+                         shift_px=args.shift_px, near_loss=float(near or 0), precision=args.precision,
+                         seen_share=args.seen_share)
 
 
 def transplant(source: Checkpoint, config: StudentConfig) -> Checkpoint:
@@ -97,6 +99,8 @@ def main() -> None:
     p.add_argument("--batch", type=int, default=128)
     p.add_argument("--lr", type=float, default=1e-4)
     p.add_argument("--shift-px", type=int, default=0)
+    p.add_argument("--precision", default="fp32", help="fp32 | bf16, as the recipe's --precision")
+    p.add_argument("--seen-share", type=float, help="as the recipe's --seen-share")
     p.add_argument("--head", type=Path, help="a privileged head (M0) each arm is composed with before export")
     p.add_argument("--episodes", type=int, default=60)
     p.add_argument("--threads", type=int, default=1)
