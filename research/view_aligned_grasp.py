@@ -16,15 +16,10 @@ import argparse
 
 import numpy as np
 
-from hil_sim.world import CAMERA_POS, CAMERA_TARGET
+from research.own_frame_readout import ACROSS, SIGHT
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import run_episode, schedule
 from trainer.teacher.scripted import ReactiveExpert
-
-_LOOK = np.subtract(CAMERA_TARGET, CAMERA_POS)[:2]
-SIGHT = _LOOK / np.linalg.norm(_LOOK)
-"""The nominal camera's line of sight on the table plane (unit, base frame)."""
-ACROSS = np.array([-SIGHT[1], SIGHT[0]])
 
 
 class AimedExpert(ReactiveExpert):
