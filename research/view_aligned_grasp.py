@@ -1,11 +1,12 @@
 """Where should the fingers close on a round object, given what the camera cannot see (issue 42)?
 
 The depth student's near misses on its own episodes lie mostly along the camera's line of sight
-(horizontally), and its readout reports ~8 % of them there, ~74 % across it (``research/keypoint_blend.py``).
-Across the finger pads a constant aim error of ~0.7 cm loses grasps; along the closing axis 1.5 cm does
-not (issue 42). ``ReactiveExpert`` closes on round kinds at whatever yaw the wrist has. This sweep gives it a
-constant aim error of B cm along or across the line of sight and closes on round kinds either as it does
-(``wrist``) or with the closing axis along the line of sight (``sight``), the same seeds (10000..) everywhere.
+(horizontally), and its readout reports ~8 % of them there, ~74 % across it
+(``research/own_frame_readout.py``). Across the finger pads a constant aim error of ~0.7 cm loses grasps;
+along the closing axis 1.5 cm does not (issue 42). ``ReactiveExpert`` closes on round kinds at whatever yaw
+the wrist has. This sweep gives it a constant aim error of B cm along or across the line of sight and closes
+on round kinds either as it does (``wrist``) or with the closing axis along the line of sight (``sight``),
+the same seeds (10000..) everywhere.
 
     python research/view_aligned_grasp.py [--kinds apple peach pear cube] [--bias-cm 0 1 1.5] [--episodes 30]
 """
@@ -19,7 +20,7 @@ import numpy as np
 from research.own_frame_readout import ACROSS, SIGHT
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import run_episode, schedule
-from trainer.teacher.scripted import ReactiveExpert
+from trainer.teacher.scripted import ReactiveExpert, nearest_turn
 
 
 class AimedExpert(ReactiveExpert):
@@ -34,12 +35,9 @@ class AimedExpert(ReactiveExpert):
         return position + self.bias, frame
 
     def _grasp_yaw(self, obj_quat: np.ndarray, rot: np.ndarray) -> float:
-        round_kind = abs(self._extent[0] - self._extent[1]) < 0.1 * max(self._extent[:2])
-        if self.closing == "wrist" or not round_kind:
+        if self.closing == "wrist" or not self.round_in_plan():
             return super()._grasp_yaw(obj_quat, rot)
-        now = np.arctan2(rot[1, 1], rot[0, 1])
-        yaw = np.arctan2(SIGHT[1], SIGHT[0])
-        return now + (yaw - now + np.pi / 2) % np.pi - np.pi / 2
+        return nearest_turn(np.arctan2(rot[1, 1], rot[0, 1]), np.arctan2(SIGHT[1], SIGHT[0]))
 
 
 def main() -> None:

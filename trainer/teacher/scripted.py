@@ -140,16 +140,19 @@ class ScriptedExpert:
     def _next(self, phase: Phase) -> None:
         self._phase, self._count = phase, 0
 
+    def round_in_plan(self) -> bool:
+        """Whether the object is round seen from above: any closing direction works on it."""
+        return abs(self._extent[0] - self._extent[1]) < 0.1 * max(self._extent[:2])
+
     def _grasp_yaw(self, obj_quat: np.ndarray, rot: np.ndarray) -> float:
         """Closing direction across the object's narrow horizontal axis, the one nearest the hand's now."""
         now = np.arctan2(rot[1, 1], rot[0, 1])
-        if abs(self._extent[0] - self._extent[1]) < 0.1 * max(self._extent[:2]):
-            return now  # round in plan view: any closing direction works, turning the wrist only costs time
+        if self.round_in_plan():
+            return now  # turning the wrist only costs time
         mat = np.zeros(9)
         mujoco.mju_quat2Mat(mat, obj_quat)
         axis = mat.reshape(3, 3)[:, 0 if self._extent[0] <= self._extent[1] else 1]
-        yaw = np.arctan2(axis[1], axis[0])
-        return now + (yaw - now + np.pi / 2) % np.pi - np.pi / 2
+        return nearest_turn(now, np.arctan2(axis[1], axis[0]))
 
 
 class ReactiveExpert(ScriptedExpert):
@@ -190,6 +193,12 @@ def _holding(priv: np.ndarray, ee: np.ndarray) -> bool:
     rel = priv[OBJECT_POSITION] - ee
     return bool(np.linalg.norm(rel[:2]) < 0.03 and -0.07 < rel[2] < 0.03
                 and priv[FINGERS].sum() > _SHUT_M)
+
+
+def nearest_turn(now: float, yaw: float) -> float:
+    """The closing yaw equivalent to ``yaw`` (the fingers are symmetric: modulo pi) nearest the hand's
+    ``now``."""
+    return now + (yaw - now + np.pi / 2) % np.pi - np.pi / 2
 
 
 def _top_down(yaw: float) -> np.ndarray:
