@@ -1,18 +1,19 @@
 """Perception variants refitted side by side from one depth student (issue 42, M1: the readout's error).
 
 Each arm starts from the same recipe checkpoint (tensors whose names and shapes match are copied; the
-readout's first layer keeps its trained columns and starts the new inputs at zero, so a ``geometric`` arm
-begins as the source's function) and is refitted with ``trainer.student.distill`` on the same stores for the
-same steps. Then each arm's readout is measured (``trainer.student.readout``) on held-out stores, and,
+readout's first layer keeps its trained columns and starts the new inputs at zero, so an arm that only adds
+inputs begins as the source's function) and is refitted with ``trainer.student.distill`` on the same stores
+for the same steps. Then each arm's readout is measured (``trainer.student.readout``) on held-out stores, and,
 exported, it is evaluated closed loop as ``trainer evaluate`` does. Prints and writes one JSON per arm.
 
     python research/perception_arms.py --init CKPT --stores S0 S1 ... --test NAME=STORE ... --out DIR \\
         [--arms base=8 s4g=4g near=8:1] [--steps 2000] [--lr 1e-4] [--shift-px 0] [--episodes 60] \\
         [--head M0] [--precision bf16] [--seen-share 0.5]
 
-An arm is NAME=STRIDE[g][:NEAR]: the fine keypoints' stride (8 or 4), g for the geometric readout inputs, and
-the weight of the near-weighted offset loss (``DistillConfig.near_loss``, default 0). With ``--head`` each arm
-is composed with that privileged head before export (as ``trainer student recipe --head``), so the closed loop
+An arm is NAME=STRIDE[LETTERS][:NEAR]: the fine keypoints' stride (8 or 4), letters for the readout's inputs
+(g: the geometric ones, n: no global average, v: 4 values under each fine keypoint; ``ARM_FLAGS``), and the
+weight of the near-weighted offset loss (``DistillConfig.near_loss``, default 0). With ``--head`` each arm is
+composed with that privileged head before export (as ``trainer student recipe --head``), so the closed loop
 measures its perception under the same head.
 """
 
@@ -33,15 +34,25 @@ from trainer.student.checkpoint import Checkpoint
 from trainer.student.config import StudentConfig
 from trainer.student.distill import DistillConfig, distill
 from trainer.student.model import PerceptionStudent
+from trainer.student.perception import readout_layout
 from trainer.student.readout import errors, readouts
 from trainer.student.recipe import export
 from trainer.student.steps import LabelledSteps
 from trainer.student.train import CKPT_NAME
 
+ARM_FLAGS = {"g": {"geometric": True}, "n": {"readout_global": False}, "v": {"keypoint_values": 4}}
+"""The letters after an arm's stride: the readout inputs it changes (``StudentConfig``)."""
+
 
 def arm_config(base: StudentConfig, spec: str) -> StudentConfig:
     network = spec.partition(":")[0]
-    return dataclasses.replace(base, fine_stride=int(network.rstrip("g")), geometric=network.endswith("g"))
+    stride, flags = network[0], network[1:]
+    if unknown := set(flags) - set(ARM_FLAGS):
+        raise SystemExit(f"error: arm {spec!r}: unknown letters {sorted(unknown)} (know {sorted(ARM_FLAGS)})")
+    changes = {"fine_stride": int(stride), "geometric": False, "readout_global": True, "keypoint_values": 0}
+    for letter in flags:
+        changes |= ARM_FLAGS[letter]
+    return dataclasses.replace(base, **changes)
 
 
 def arm_distill(spec: str, args: argparse.Namespace) -> DistillConfig:
@@ -51,20 +62,27 @@ def arm_distill(spec: str, args: argparse.Namespace) -> DistillConfig:
                          seen_share=args.seen_share)
 
 
+READOUT_INPUT = "perception.readout.0.weight"
+
+
 def transplant(source: Checkpoint, config: StudentConfig) -> Checkpoint:
-    """``source``'s weights in a network of ``config``: matching tensors copied, a wider first readout layer
-    keeps the source's columns and zeros for the new ones, the rest fresh."""
+    """``source``'s weights in a network of ``config``: matching tensors copied, the readout's first layer
+    column block by column block (``readout_layout``: a block the source lacks starts at zero, one the arm
+    drops is left out), the rest fresh."""
     net = PerceptionStudent(config)
     state = net.state_dict()
     for name, tensor in source.ema.items():
-        if name not in state:
-            continue
-        if state[name].shape == tensor.shape:
+        if name in state and state[name].shape == tensor.shape and name != READOUT_INPUT:
             state[name] = tensor.clone()
-        elif tensor.dim() == 2 and tensor.shape[0] == state[name].shape[0]:  # the readout's first layer
-            state[name] = torch.cat([tensor, tensor.new_zeros(tensor.shape[0],
-                                                              state[name].shape[1] - tensor.shape[1])], 1)
+    blocks = _columns(readout_layout(source.config), source.ema[READOUT_INPUT])
+    rows = len(state[READOUT_INPUT])
+    state[READOUT_INPUT] = torch.cat([blocks.get(block, state[READOUT_INPUT].new_zeros(rows, n))
+                                      for block, n in readout_layout(config)], dim=1)
     return Checkpoint(config, source.info, ema=state, model={k: v.clone() for k, v in state.items()})
+
+
+def _columns(layout: list[tuple[str, int]], weight: torch.Tensor) -> dict[str, torch.Tensor]:
+    return dict(zip([block for block, _ in layout], weight.split([n for _, n in layout], dim=1), strict=True))
 
 
 def run_arm(name: str, spec: str, source: Checkpoint, data: LabelledSteps, tests: dict[str, Path],

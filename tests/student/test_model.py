@@ -11,7 +11,7 @@ from trainer.student import checkpoint
 from trainer.student.cli import main as student_main
 from trainer.student.config import StudentConfig, StudentConfigError
 from trainer.student.model import PerceptionStudent, StudentPolicy, hand_pose
-from trainer.student.perception import GEOMETRY_GAIN, SpatialSoftmax, geometry
+from trainer.student.perception import GEOMETRY_GAIN, SpatialSoftmax, geometry, looked_at
 
 TINY = StudentConfig(width=8, head_dims=(16, 32), state_features=16, step_features=16)
 
@@ -81,6 +81,36 @@ def test_geometry_reads_the_depth_under_each_keypoint():
     torch.testing.assert_close(got, torch.tensor([[-2.0, -2.0, 0.2, 0.5, -0.3]]))
 
 
+def test_each_keypoint_reports_its_own_values_where_it_looks():
+    values = torch.arange(2 * 3 * 4, dtype=torch.float32).reshape(1, 2 * 3, 2, 2)  # K=2 keypoints, V=3
+    attention = torch.zeros(1, 2, 4)
+    attention[0, 0, 1] = 1.0  # keypoint 0 on cell 1
+    attention[0, 1, 2] = attention[0, 1, 3] = 0.5  # keypoint 1 between cells 2 and 3
+    expected = torch.tensor([[1.0, 5.0, 9.0, 14.5, 18.5, 22.5]])  # its channels 0-2 / 3-5 at those cells
+    torch.testing.assert_close(looked_at(values, attention), expected)
+
+
+@pytest.mark.parametrize("changes", [{"readout_global": False}, {"keypoint_values": 3},
+                                     {"readout_global": False, "keypoint_values": 2, "geometric": True}])
+def test_the_readout_reads_the_inputs_its_layout_names(changes):
+    """Each block's columns move the readout; a dropped global average leaves it blind to that input."""
+    net = PerceptionStudent(StudentConfig(perception="depth", width=8, **changes)).perception
+    assert net.readout[0].in_features == sum(n for _, n in net.layout)
+    names = [name for name, _ in net.layout]
+    assert ("global" in names) == changes.get("readout_global", True)
+    assert ("values" in names) == bool(changes.get("keypoint_values"))
+    hand = net.columns("hand")
+    with torch.no_grad():
+        net.readout[0].weight.zero_()
+        net.readout[0].weight[:, hand] = 1.0  # only the hand columns speak
+        depth, pose = torch.rand(2, 3, 96, 128), torch.randn(2, 9)
+        first = net(depth, pose)[1]
+        torch.testing.assert_close(net(torch.rand(2, 3, 96, 128), pose)[1], first)
+        assert not torch.allclose(net(depth, pose + 1.0)[1], first)
+    with pytest.raises(KeyError, match="no 'nothing'"):
+        net.columns("nothing")
+
+
 @pytest.mark.parametrize("stride, cells", [(8, 16 * 12), (4, 32 * 24)])
 def test_the_fine_keypoints_attend_over_the_map_of_their_stride(stride, cells):
     perception = PerceptionStudent(StudentConfig(perception="depth", width=8, fine_stride=stride,
@@ -96,6 +126,7 @@ def test_the_fine_keypoints_attend_over_the_map_of_their_stride(stride, cells):
     ({"action_horizon": 10, "head_dims": (16, 32, 64)}, "action_horizon"),
     ({"exec_horizon": 17}, "exec_horizon"),
     ({"keypoints": 0}, "keypoints"),
+    ({"keypoint_values": -1}, "keypoint_values"),
 ])
 def test_bad_config_is_refused(kwargs, match):
     with pytest.raises(StudentConfigError, match=match):

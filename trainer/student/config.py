@@ -93,6 +93,14 @@ class StudentConfig:
     """``perception="depth"``: the readout also reads the two supervised keypoints' difference and the depths
     under them (each keypoint's attention-weighted depth of the latest frame) and their difference: the
     offset in image terms, where an error of the camera's pose moves both points alike and cancels."""
+    readout_global: bool = True
+    """``perception="depth"``: the readout reads the last stage's global average beside the keypoints. It is
+    a fingerprint of the scene: on the learner's own frames the readout reports 8 % of a near miss along the
+    camera's line of sight and 96-99 % on the frames it trained on (``docs/history.md``, 2026-11-29)."""
+    keypoint_values: int = 0
+    """``perception="depth"``: each fine keypoint also reports this many learned values of the fine map,
+    averaged under its attention: what the map says where it looks (how far the fingers stand in front of the
+    object's surface, which no image position tells)."""
 
     def __post_init__(self) -> None:
         if self.prediction not in PREDICTIONS:
@@ -106,6 +114,8 @@ class StudentConfig:
                                      f"drop {', '.join(earlier)}")
         if self.fine_stride not in (4, 8):
             raise StudentConfigError(f"fine_stride must be 4 or 8, got {self.fine_stride}")
+        if self.keypoint_values < 0:
+            raise StudentConfigError(f"keypoint_values must be >= 0, got {self.keypoint_values}")
         if self.fine_keypoints < 2:
             raise StudentConfigError(f"fine_keypoints must be >= 2 (two are supervised), got "
                                      f"{self.fine_keypoints}")

@@ -217,9 +217,7 @@ class PerceptionStudent(nn.Module):
         self.label_norm = RangeNormaliser(READOUT)
         """Facts in metres -> standardised units: centre = mean, half_range = std over the training steps."""
         depth = config.perception == "depth"
-        self.perception = (Perception(config.obs_horizon, config.width, config.keypoints,
-                                      config.fine_keypoints, config.fine_stride, config.geometric)
-                           if depth else None)
+        self.perception = Perception(config) if depth else None
         features = self.perception.out_features if depth and config.head_features else 0
         inputs = config.state_dim + HAND_FEATURES + READOUT + 2
         self.state_mlp = nn.Sequential(nn.Linear(inputs, config.state_features), nn.ReLU(),

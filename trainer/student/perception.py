@@ -18,6 +18,7 @@ import torch
 from torch import nn
 
 from trainer.sim.labels import READOUT
+from trainer.student.config import StudentConfig
 
 SUPERVISED_KEYPOINTS = 2
 """Fine keypoints 0 and 1 are pulled to the object's and the hand's pixels."""
@@ -106,29 +107,44 @@ class Perception(nn.Module):
     readout [B, READOUT] in standardised label units, fine keypoints [B, K, 2] in [-1, 1] image
     coordinates)."""
 
-    def __init__(self, channels: int, width: int, keypoints: int, fine_keypoints: int, fine_stride: int = 8,
-                 geometric: bool = False) -> None:
+    def __init__(self, config: StudentConfig) -> None:
         super().__init__()
-        self.resnet = ResNet18(channels, width, keypoints)
+        width, fine_keypoints = config.width, config.fine_keypoints
+        self.resnet = ResNet18(config.obs_horizon, width, config.keypoints)
         # stride 4: the stride-8 map upsampled beside the first stage's (stride 4), mixed by one convolution
         self.pyramid = (nn.Sequential(nn.Conv2d(3 * width, 2 * width, 3, 1, 1, bias=False),
                                       nn.GroupNorm(_groups(2 * width), 2 * width), nn.ReLU())
-                        if fine_stride == 4 else None)
+                        if config.fine_stride == 4 else None)
         self.fine = SpatialSoftmax(2 * width, fine_keypoints)
-        self.geometric = geometric
+        self.values = (nn.Conv2d(2 * width, fine_keypoints * config.keypoint_values, 1)
+                       if config.keypoint_values else None)
+        self.geometric, self.readout_global = config.geometric, config.readout_global
         self.out_features = self.resnet.out_features + self.fine.out_features + 8 * width
-        inputs = self.out_features + HAND_FEATURES + (GEOMETRY_FEATURES if geometric else 0)
-        self.readout = nn.Sequential(nn.Linear(inputs, 256), nn.ReLU(),
+        self.layout = readout_layout(config)
+        self.readout = nn.Sequential(nn.Linear(sum(n for _, n in self.layout), 256), nn.ReLU(),
                                      nn.Linear(256, 256), nn.ReLU(), nn.Linear(256, READOUT))
 
     def forward(self, depth: torch.Tensor, hand: torch.Tensor) -> tuple[torch.Tensor, ...]:
         fine_map, last = self.maps(depth)
         fine, attention = self.fine.locate(fine_map)
-        features = torch.cat([self.resnet.pool(last), fine.flatten(1), last.mean(dim=(2, 3))], dim=-1)
-        inputs = [features, hand]
+        keypoints = torch.cat([self.resnet.pool(last), fine.flatten(1)], dim=-1)
+        pooled = last.mean(dim=(2, 3))
+        inputs = [keypoints, pooled, hand] if self.readout_global else [keypoints, hand]
         if self.geometric:
             inputs.append(geometry(fine, attention, depth[:, -1:], fine_map.shape[-2:]))
+        if self.values is not None:
+            inputs.append(looked_at(self.values(fine_map), attention))
+        features = torch.cat([keypoints, pooled], dim=-1)
         return features, self.readout(torch.cat(inputs, dim=-1)), fine
+
+    def columns(self, block: str) -> slice:
+        """Where the readout's first layer reads the block of inputs named ``block`` (``readout_layout``)."""
+        start = 0
+        for name, n in self.layout:
+            if name == block:
+                return slice(start, start + n)
+            start += n
+        raise KeyError(f"the readout reads no {block!r} inputs")
 
     def maps(self, depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(the fine keypoints' map, the last stage's map) of a depth stack."""
@@ -149,3 +165,24 @@ def geometry(fine: torch.Tensor, attention: torch.Tensor, frame: torch.Tensor, c
     cell_depth = nn.functional.adaptive_avg_pool2d(frame, cells).flatten(1)  # [B, h*w]
     z = (attention[:, :SUPERVISED_KEYPOINTS] * cell_depth[:, None]).sum(-1)  # [B, 2]: object, hand
     return GEOMETRY_GAIN * torch.cat([fine[:, 0] - fine[:, 1], z, z[:, :1] - z[:, 1:]], dim=-1)
+
+
+def looked_at(values: torch.Tensor, attention: torch.Tensor) -> torch.Tensor:
+    """Each keypoint's values [B, K * V, h, w] averaged under its attention [B, K, h*w]: [B, K * V]."""
+    b, k, cells = attention.shape
+    per_keypoint = values.reshape(b, k, -1, cells)  # [B, K, V, h*w]
+    return (per_keypoint * attention[:, :, None]).sum(-1).flatten(1)
+
+
+def readout_layout(config: StudentConfig) -> list[tuple[str, int]]:
+    """The readout's input columns in order, as (name, count): what a refit keeps of a source's first layer
+    (``research/perception_arms.py``)."""
+    layout = [("keypoints", 2 * (config.keypoints + config.fine_keypoints))]
+    if config.readout_global:
+        layout.append(("global", 8 * config.width))
+    layout.append(("hand", HAND_FEATURES))
+    if config.geometric:
+        layout.append(("geometry", GEOMETRY_FEATURES))
+    if config.keypoint_values:
+        layout.append(("values", config.fine_keypoints * config.keypoint_values))
+    return layout
