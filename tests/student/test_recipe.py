@@ -147,6 +147,20 @@ def test_perception_student_exports_with_parity(tmp_path, variant):
     assert run_check(out, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
 
 
+def test_the_rounds_draw_their_own_kinds_and_a_misspelt_one_is_refused(tmp_path, capsys):
+    from trainer.student.recipe import main as recipe_main
+
+    args = ["--out", str(tmp_path / "r"), "--perception", "privileged", "--objects", "cube", "--demos", "2",
+            "--rounds", "1", "--round-episodes", "2", "--fit-steps", "2", "--round-steps", "1", "--workers", "1",
+            "--curve-episodes", "1", "--eval-episodes", "1", "--state-features", "16", "--head-dims", "16", "32"]
+    assert recipe_main([*args, "--round-objects", "bananna"]) == 2
+    assert "bananna" in capsys.readouterr().err
+    assert recipe_main([*args, "--round-objects", "banana"]) == 0
+    data = tmp_path / "r" / "data"
+    assert DemoStore.open(data / "round0.zarr").kinds == ["cube", "cube"]
+    assert DemoStore.open(data / "round1.zarr").kinds == ["banana", "banana"]
+
+
 def test_the_recipe_resumes_without_redoing_finished_stages(tmp_path, capsys):
     from trainer.student.recipe import main as recipe_main
 

@@ -29,7 +29,7 @@ import os
 import subprocess
 import sys
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import partial
 from pathlib import Path
 
@@ -97,6 +97,10 @@ class RecipeConfig:
     seen kinds and 24 procedural shapes, ``hil_sim.objects.SHAPES``) or a comma list. The curve and the
     evaluation keep the seen and unseen kinds. M0 on ``train`` (1000 demos) against M0 on ``seen``: unseen
     82.2 against 67.8 % (37 episodes won, 11 lost; the can 0 -> 53 %), seen 91.7 against 90.6 %."""
+    round_objects: str = ""
+    """The kinds the DAgger rounds' learner episodes draw from ("" = ``objects``): rounds still to come may
+    change it. The demos give the seen kinds ~20 % of ``train``'s scenes, and the readout memorises the
+    scenes it trained on (``docs/history.md``, 2026-11-29): ``seen`` rounds give those kinds more scenes."""
     hover_episodes: int = 0
     """Episodes driven by ``head`` on the true facts offset by ``hover_cm`` in a random horizontal direction
     (fixed per episode), every state labelled by the expert (``data/hover.zarr``, in every fit). They hold
@@ -190,8 +194,10 @@ class Recipe:
         spec = RoundSpec(learner=learner, beta=c.beta * 0.5 ** (r - 1) if r else 0.0,
                          horizon=c.student().action_horizon)
         episodes = c.demos if r == 0 else c.round_episodes
+        env = self.env if r == 0 or not c.round_objects else replace(self.env,
+                                                                    objects=select_kinds(c.round_objects))
         if self._episodes(self.store(r)) < episodes:
-            tally = collect_round(self.store(r), self.env, spec, episodes=episodes,
+            tally = collect_round(self.store(r), env, spec, episodes=episodes,
                                   seed=ROUND_SEED + r * 100_000, workers=c.workers)
             self._log(f"round {r} data", tally)
 
@@ -340,10 +346,10 @@ class Recipe:
 
 
 RESUMABLE = {"workers", "threads", "precision", "curve_episodes", "eval_episodes", "rounds", "round_steps",
-             "round_episodes"}
+             "round_episodes", "round_objects"}
 """Settings a resume may change: how the work is spread and computed, how much is measured, how many more
 rounds, and how many episodes the rounds still to come collect and how long they fit (a round the curve has
-measured keeps its data and weights).
+measured keeps its data and weights), and the kinds they draw.
 Precision is one: round 4 of the same recipe fitted in bf16 and in fp32 from the same round 3, same data and
 seeds, grasped 78.3 / 61.7 % against 75.6 / 65.0 % (paired 11 / 6 seen, 8 / 14 unseen; neither clears)."""
 
@@ -412,6 +418,8 @@ def main(argv: list[str] | None = None) -> int:
         if cfg.seen_share is not None and len({k in SEEN for k in select_kinds(cfg.objects)}) < 2:
             raise ValueError(f"--seen-share weighs the seen kinds against the others: --objects "
                              f"{cfg.objects} holds only one sort (train holds both)")
+        if cfg.round_objects:
+            select_kinds(cfg.round_objects)  # a misspelt kind now, not after the demos
         if cfg.hover_episodes and not cfg.head:
             raise ValueError("--hover-episodes needs --head: the privileged head drives them")
         if cfg.head and not Path(cfg.head).is_file():  # found now, not by the first worker that loads it
