@@ -9,9 +9,9 @@ import torch
 
 from trainer.student import checkpoint
 from trainer.student.cli import main as student_main
-from trainer.student.config import StudentConfig, StudentConfigError
-from trainer.student.model import PerceptionStudent, StudentPolicy, hand_pose
-from trainer.student.perception import GEOMETRY_GAIN, SpatialSoftmax, geometry, looked_at
+from trainer.student.config import RETIRED, StudentConfig, StudentConfigError
+from trainer.student.model import StudentPolicy, hand_pose
+from trainer.student.perception import SpatialSoftmax
 
 TINY = StudentConfig(width=8, head_dims=(16, 32), state_features=16, step_features=16)
 
@@ -70,63 +70,12 @@ def test_spatial_softmax_reads_where_the_peak_is():
     torch.testing.assert_close(pool(fmap), torch.tensor([[1.0, -1.0], [-1.0, 1.0]]), atol=1e-4, rtol=0)
 
 
-def test_geometry_reads_the_depth_under_each_keypoint():
-    frame = torch.zeros(1, 1, 8, 8)
-    frame[0, 0, :4, :4] = 0.2  # the object's cell (top left of 2 x 2)
-    frame[0, 0, 4:, 4:] = 0.5  # the hand's (bottom right)
-    attention = torch.zeros(1, 2, 4)
-    attention[0, 0, 0] = attention[0, 1, 3] = 1.0
-    fine = torch.tensor([[[-1.0, -1.0], [1.0, 1.0]]])
-    got = geometry(fine, attention, frame, torch.Size([2, 2])) / GEOMETRY_GAIN
-    torch.testing.assert_close(got, torch.tensor([[-2.0, -2.0, 0.2, 0.5, -0.3]]))
-
-
-def test_each_keypoint_reports_its_own_values_where_it_looks():
-    values = torch.arange(2 * 3 * 4, dtype=torch.float32).reshape(1, 2 * 3, 2, 2)  # K=2 keypoints, V=3
-    attention = torch.zeros(1, 2, 4)
-    attention[0, 0, 1] = 1.0  # keypoint 0 on cell 1
-    attention[0, 1, 2] = attention[0, 1, 3] = 0.5  # keypoint 1 between cells 2 and 3
-    expected = torch.tensor([[1.0, 5.0, 9.0, 14.5, 18.5, 22.5]])  # its channels 0-2 / 3-5 at those cells
-    torch.testing.assert_close(looked_at(values, attention), expected)
-
-
-@pytest.mark.parametrize("changes", [{"readout_global": False}, {"keypoint_values": 3},
-                                     {"readout_global": False, "keypoint_values": 2, "geometric": True}])
-def test_the_readout_reads_the_inputs_its_layout_names(changes):
-    """Each block's columns move the readout; a dropped global average leaves it blind to that input."""
-    net = PerceptionStudent(StudentConfig(perception="depth", width=8, **changes)).perception
-    assert net.readout[0].in_features == sum(n for _, n in net.layout)
-    names = [name for name, _ in net.layout]
-    assert ("global" in names) == changes.get("readout_global", True)
-    assert ("values" in names) == bool(changes.get("keypoint_values"))
-    hand = net.columns("hand")
-    with torch.no_grad():
-        net.readout[0].weight.zero_()
-        net.readout[0].weight[:, hand] = 1.0  # only the hand columns speak
-        depth, pose = torch.rand(2, 3, 96, 128), torch.randn(2, 9)
-        first = net(depth, pose)[1]
-        torch.testing.assert_close(net(torch.rand(2, 3, 96, 128), pose)[1], first)
-        assert not torch.allclose(net(depth, pose + 1.0)[1], first)
-    with pytest.raises(KeyError, match="no 'nothing'"):
-        net.columns("nothing")
-
-
-@pytest.mark.parametrize("stride, cells", [(8, 16 * 12), (4, 32 * 24)])
-def test_the_fine_keypoints_attend_over_the_map_of_their_stride(stride, cells):
-    perception = PerceptionStudent(StudentConfig(perception="depth", width=8, fine_stride=stride,
-                                                 geometric=True)).perception
-    fine_map, _ = perception.maps(torch.rand(1, 3, 96, 128))
-    assert perception.fine.locate(fine_map)[1].shape[-1] == cells
-
-
 @pytest.mark.parametrize("kwargs, match", [
     ({"width": 12}, "width"),
-    ({"fine_stride": 2}, "fine_stride"),
     ({"head_dims": (16, 20)}, "head_dims"),
     ({"action_horizon": 10, "head_dims": (16, 32, 64)}, "action_horizon"),
     ({"exec_horizon": 17}, "exec_horizon"),
     ({"keypoints": 0}, "keypoints"),
-    ({"keypoint_values": -1}, "keypoint_values"),
 ])
 def test_bad_config_is_refused(kwargs, match):
     with pytest.raises(StudentConfigError, match=match):
@@ -134,13 +83,16 @@ def test_bad_config_is_refused(kwargs, match):
 
 
 def test_checkpoints_from_before_the_retired_options_load_unless_they_used_one():
-    """Configurations saved while first_frame, seen_turn and seen_yaw existed record them: false is dropped,
-    true refused."""
+    """Configurations saved while a retired option existed record it: its "off" value is dropped, any other
+    refused."""
     saved = json.loads(TINY.to_json())
-    for name in ("first_frame", "seen_turn", "seen_yaw"):
-        assert StudentConfig.from_json(json.dumps(saved | {name: False})) == TINY
+    on = {"first_frame": True, "seen_turn": True, "seen_yaw": True, "fine_stride": 4, "geometric": True,
+          "readout_global": False, "keypoint_values": 4}
+    assert on.keys() == RETIRED.keys()
+    for name, off in RETIRED.items():
+        assert StudentConfig.from_json(json.dumps(saved | {name: off})) == TINY
         with pytest.raises(StudentConfigError, match=f"trained with {name} are no longer supported"):
-            StudentConfig.from_json(json.dumps(saved | {name: True}))
+            StudentConfig.from_json(json.dumps(saved | {name: on[name]}))
 
 
 def test_checkpoint_round_trip_is_weights_only(tmp_path):

@@ -133,16 +133,14 @@ def test_training_frames_are_held_in_a_dtype_a_gpu_can_index_and_read_back_exact
     np.testing.assert_array_equal(steps.batch(torch.tensor([0])).depth[0, -1].numpy(), expected)
 
 
-@pytest.mark.parametrize("variant", [[], ["--fine-stride", "4", "--geometric"],
-                                     ["--no-readout-global", "--keypoint-values", "2"]])
-def test_perception_student_exports_with_parity(tmp_path, variant):
+def test_perception_student_exports_with_parity(tmp_path):
     from export.__main__ import main as export_main
     from export.check import run_check
     from trainer.student.cli import main as student_main
 
     ckpt, out = tmp_path / "p.pt", tmp_path / "p.onnx"
     assert student_main(["init", "--out", str(ckpt), "--perception", "depth", "--prediction", "v_prediction",
-                         *TINY, *variant]) == 0
+                         *TINY]) == 0
     assert export_main([str(ckpt), "--ddim-steps", "4", "--out", str(out)]) == 0
     assert run_check(out, repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
 
@@ -151,8 +149,9 @@ def test_the_rounds_draw_their_own_kinds_and_a_misspelt_one_is_refused(tmp_path,
     from trainer.student.recipe import main as recipe_main
 
     args = ["--out", str(tmp_path / "r"), "--perception", "privileged", "--objects", "cube", "--demos", "2",
-            "--rounds", "1", "--round-episodes", "2", "--fit-steps", "2", "--round-steps", "1", "--workers", "1",
-            "--curve-episodes", "1", "--eval-episodes", "1", "--state-features", "16", "--head-dims", "16", "32"]
+            "--rounds", "1", "--round-episodes", "2", "--fit-steps", "2", "--round-steps", "1",
+            "--workers", "1", "--curve-episodes", "1", "--eval-episodes", "1", "--state-features", "16",
+            "--head-dims", "16", "32"]
     assert recipe_main([*args, "--round-objects", "bananna"]) == 2
     assert "bananna" in capsys.readouterr().err
     assert recipe_main([*args, "--round-objects", "banana"]) == 0
@@ -355,8 +354,7 @@ def test_a_composed_student_acts_on_the_readout_as_the_privileged_head_would(tmp
     from trainer.student.compose import compose
 
     paths = {}
-    eye = ["depth", "--geometric", "--no-readout-global", "--keypoint-values", "2"]  # the hand's columns moved
-    for name, kind in (("eye", eye), ("head", ["privileged"])):
+    for name, kind in (("eye", ["depth"]), ("head", ["privileged"])):
         paths[name] = tmp_path / f"{name}.pt"
         assert student_main(["init", "--out", str(paths[name]), "--prediction", "v_prediction", *TINY,
                              "--perception", *kind]) == 0

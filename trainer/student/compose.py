@@ -21,6 +21,7 @@ from pathlib import Path
 from trainer.student import checkpoint
 from trainer.student.checkpoint import Checkpoint
 from trainer.student.model import PerceptionStudent
+from trainer.student.perception import HAND_FEATURES
 
 HEAD_FIELDS = ("action_horizon", "exec_horizon", "state_features", "head_dims", "step_features",
                "train_timesteps", "prediction", "state_dim", "action_dim")
@@ -38,7 +39,7 @@ def compose(perception: Checkpoint, head: Checkpoint) -> Checkpoint:
     net = PerceptionStudent(config)
     weights = {k: v.clone() for k, v in head.ema.items()}
     weights.update({k: v.clone() for k, v in perception.ema.items() if k.startswith("perception.")})
-    _fold_hand_scaling(weights, net.perception.columns("hand"), perception.ema, head.ema)
+    _fold_hand_scaling(weights, net.perception.out_features, perception.ema, head.ema)
     _fold_facts_scaling(weights, perception.ema, head.ema)
     net.load_state_dict(weights)  # every tensor named, none left over
     state = net.state_dict()
@@ -48,10 +49,11 @@ def compose(perception: Checkpoint, head: Checkpoint) -> Checkpoint:
                       step=perception.step)
 
 
-def _fold_hand_scaling(weights: dict, hand: slice, perception: dict, head: dict) -> None:
-    """The readout read the hand pose (its first layer's ``hand`` columns) as (h - c_p) / r_p; it will get
+def _fold_hand_scaling(weights: dict, features: int, perception: dict, head: dict) -> None:
+    """The readout read the hand pose (its inputs after the ``features``) as (h - c_p) / r_p; it will get
     (h - c_h) / r_h."""
     first = "perception.readout.0"
+    hand = slice(features, features + HAND_FEATURES)
     c_p, r_p = perception["hand_norm.centre"], perception["hand_norm.half_range"]
     c_h, r_h = head["hand_norm.centre"], head["hand_norm.half_range"]
     w = weights[f"{first}.weight"]

@@ -13,14 +13,16 @@ class StudentConfigError(ValueError):
     """A student configuration that cannot build a model (bad width, horizon, dims)."""
 
 
-RETIRED = ("first_frame", "seen_turn", "seen_yaw")
-"""Options of past experiments, retired once the recipe beat them (issue 42). Checkpoints written while they
-existed record them, false in all but those experiments' own."""
+RETIRED = {"first_frame": False, "seen_turn": False, "seen_yaw": False, "fine_stride": 8, "geometric": False,
+           "readout_global": True, "keypoint_values": 0}
+"""Options of past experiments, retired once the recipe beat them or they lost theirs (issue 42; ``docs/
+history.md``), with the value that meant "off". Checkpoints written while they existed record them, off in all
+but those experiments' own."""
 
 
 def _drop_retired(d: dict) -> None:
-    """Remove the ``RETIRED`` fields from a saved configuration; one that is set is refused."""
-    if used := [name for name in RETIRED if d.pop(name, False)]:
+    """Remove the ``RETIRED`` fields from a saved configuration; one that is on is refused."""
+    if used := [name for name, off in RETIRED.items() if d.pop(name, off) != off]:
         raise StudentConfigError(f"students trained with {', '.join(used)} are no longer supported (retired "
                                  "in issue 42)")
 
@@ -81,26 +83,10 @@ class StudentConfig:
     object head and its options below."""
     fine_keypoints: int = 16
     """``perception="depth"``: keypoints of the fine map (the first two are the supervised ones)."""
-    fine_stride: int = 8
-    """``perception="depth"``: the fine keypoints' map, 8 (16 x 12 cells at 128 x 96) or 4 (32 x 24: the
-    stride-8 map upsampled onto the first stage's, as a feature pyramid does): a keypoint within a cell is
-    placed by the softmax's blend of neighbours, and a pixel of keypoint error costs ~1 cm of offset."""
     head_features: bool = True
     """``perception="depth"``: the action head reads the depth features beside the facts. False: it reads
     only what the privileged head (M0) reads (the facts, the joint state, the hand's pose), so that a head
     trained on the true facts can act on the readout (``trainer student compose``)."""
-    geometric: bool = False
-    """``perception="depth"``: the readout also reads the two supervised keypoints' difference and the depths
-    under them (each keypoint's attention-weighted depth of the latest frame) and their difference: the
-    offset in image terms, where an error of the camera's pose moves both points alike and cancels."""
-    readout_global: bool = True
-    """``perception="depth"``: the readout reads the last stage's global average beside the keypoints. It is
-    a fingerprint of the scene: on the learner's own frames the readout reports 8 % of a near miss along the
-    camera's line of sight and 96-99 % on the frames it trained on (``docs/history.md``, 2026-11-29)."""
-    keypoint_values: int = 0
-    """``perception="depth"``: each fine keypoint also reports this many learned values of the fine map,
-    averaged under its attention: what the map says where it looks (how far the fingers stand in front of the
-    object's surface, which no image position tells)."""
 
     def __post_init__(self) -> None:
         if self.prediction not in PREDICTIONS:
@@ -112,10 +98,6 @@ class StudentConfig:
         if self.perception and earlier:
             raise StudentConfigError(f"perception={self.perception!r} reads the hand pose and its own facts: "
                                      f"drop {', '.join(earlier)}")
-        if self.fine_stride not in (4, 8):
-            raise StudentConfigError(f"fine_stride must be 4 or 8, got {self.fine_stride}")
-        if self.keypoint_values < 0:
-            raise StudentConfigError(f"keypoint_values must be >= 0, got {self.keypoint_values}")
         if self.fine_keypoints < 2:
             raise StudentConfigError(f"fine_keypoints must be >= 2 (two are supervised), got "
                                      f"{self.fine_keypoints}")

@@ -26,6 +26,7 @@ from trainer.student.checkpoint import Checkpoint, TrainingInfo
 from trainer.student.config import StudentConfig
 from trainer.student.ddim import training_scheduler
 from trainer.student.model import PerceptionStudent
+from trainer.student.perception import SUPERVISED_KEYPOINTS
 from trainer.student.steps import LabelledSteps, StepBatch
 from trainer.student.train import CKPT_NAME, ema_update, lr_factor, plot_losses
 
@@ -124,7 +125,7 @@ def _losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Gene
             terms["near"] = near_error(net.label_norm.unnormalise(facts), batch.labels)
         pixels = torch.stack([batch.labels[:, OBJECT_PX], batch.labels[:, HAND_PX]], dim=1)  # [B, 2, 2]
         seen = (pixels.abs() <= 1).all(dim=-1)
-        error = ((keypoints[:, :2] - pixels) ** 2).sum(dim=-1)
+        error = ((keypoints[:, :SUPERVISED_KEYPOINTS] - pixels) ** 2).sum(dim=-1)
         terms["keypoints"] = (error * seen).sum() / seen.sum().clamp_min(1)
     terms["denoise"] = nn.functional.mse_loss(net(noisy, k, obs).float(),
                                               training_target(scheduler, clean, noise, k))

@@ -95,13 +95,6 @@ class ResNet18(nn.Module):
         return self.pool(self.blocks(self.stem(x)))
 
 
-GEOMETRY_FEATURES = 5
-"""``geometric`` readout inputs: the supervised keypoints' difference (x, y) and the depths under them."""
-GEOMETRY_GAIN = 10.0
-"""Scales those inputs so that a centimetre is ~0.1 (a pixel is 0.016 in keypoint units, a centimetre of depth
-0.008 after ``runtime.preprocess.normalise``), where the readout's first layer starts out sensitive."""
-
-
 class Perception(nn.Module):
     """Depth stack [B, To, H, W] (newest frame last) + normalised hand pose [B, 9] -> (features [B, F],
     readout [B, READOUT] in standardised label units, fine keypoints [B, K, 2] in [-1, 1] image
@@ -109,80 +102,17 @@ class Perception(nn.Module):
 
     def __init__(self, config: StudentConfig) -> None:
         super().__init__()
-        width, fine_keypoints = config.width, config.fine_keypoints
+        width = config.width
         self.resnet = ResNet18(config.obs_horizon, width, config.keypoints)
-        # stride 4: the stride-8 map upsampled beside the first stage's (stride 4), mixed by one convolution
-        self.pyramid = (nn.Sequential(nn.Conv2d(3 * width, 2 * width, 3, 1, 1, bias=False),
-                                      nn.GroupNorm(_groups(2 * width), 2 * width), nn.ReLU())
-                        if config.fine_stride == 4 else None)
-        self.fine = SpatialSoftmax(2 * width, fine_keypoints)
-        self.values = (nn.Conv2d(2 * width, fine_keypoints * config.keypoint_values, 1)
-                       if config.keypoint_values else None)
-        self.geometric, self.readout_global = config.geometric, config.readout_global
+        self.fine = SpatialSoftmax(2 * width, config.fine_keypoints)
         self.out_features = self.resnet.out_features + self.fine.out_features + 8 * width
-        self.layout = readout_layout(config)
-        self.readout = nn.Sequential(nn.Linear(sum(n for _, n in self.layout), 256), nn.ReLU(),
+        self.readout = nn.Sequential(nn.Linear(self.out_features + HAND_FEATURES, 256), nn.ReLU(),
                                      nn.Linear(256, 256), nn.ReLU(), nn.Linear(256, READOUT))
 
     def forward(self, depth: torch.Tensor, hand: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        fine_map, last = self.maps(depth)
-        fine, attention = self.fine.locate(fine_map)
-        keypoints = torch.cat([self.resnet.pool(last), fine.flatten(1)], dim=-1)
-        pooled = last.mean(dim=(2, 3))
-        inputs = [keypoints, pooled, hand] if self.readout_global else [keypoints, hand]
-        if self.geometric:
-            inputs.append(geometry(fine, attention, depth[:, -1:], fine_map.shape[-2:]))
-        if self.values is not None:
-            inputs.append(looked_at(self.values(fine_map), attention))
-        features = torch.cat([keypoints, pooled], dim=-1)
-        return features, self.readout(torch.cat(inputs, dim=-1)), fine
-
-    def columns(self, block: str) -> slice:
-        """Where the readout's first layer reads the block of inputs named ``block`` (``readout_layout``)."""
-        start = 0
-        for name, n in self.layout:
-            if name == block:
-                return slice(start, start + n)
-            start += n
-        raise KeyError(f"the readout reads no {block!r} inputs")
-
-    def maps(self, depth: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(the fine keypoints' map, the last stage's map) of a depth stack."""
         r = self.resnet
-        stride4 = r.blocks[:2](r.stem(depth))  # stage 1
-        stride8 = r.blocks[2:4](stride4)  # stage 2
+        stride8 = r.blocks[:4](r.stem(depth))  # stages 1 and 2
         last = r.blocks[4:](stride8)
-        if self.pyramid is None:
-            return stride8, last
-        up = nn.functional.interpolate(stride8, size=stride4.shape[-2:], mode="nearest")
-        return self.pyramid(torch.cat([stride4, up], dim=1)), last
-
-
-def geometry(fine: torch.Tensor, attention: torch.Tensor, frame: torch.Tensor, cells: torch.Size
-             ) -> torch.Tensor:
-    """The object keypoint minus the hand keypoint (x, y), the depth under each (the frame averaged over each
-    cell, weighted by the keypoint's attention) and their difference, times ``GEOMETRY_GAIN``: [B, 5]."""
-    cell_depth = nn.functional.adaptive_avg_pool2d(frame, cells).flatten(1)  # [B, h*w]
-    z = (attention[:, :SUPERVISED_KEYPOINTS] * cell_depth[:, None]).sum(-1)  # [B, 2]: object, hand
-    return GEOMETRY_GAIN * torch.cat([fine[:, 0] - fine[:, 1], z, z[:, :1] - z[:, 1:]], dim=-1)
-
-
-def looked_at(values: torch.Tensor, attention: torch.Tensor) -> torch.Tensor:
-    """Each keypoint's values [B, K * V, h, w] averaged under its attention [B, K, h*w]: [B, K * V]."""
-    b, k, cells = attention.shape
-    per_keypoint = values.reshape(b, k, -1, cells)  # [B, K, V, h*w]
-    return (per_keypoint * attention[:, :, None]).sum(-1).flatten(1)
-
-
-def readout_layout(config: StudentConfig) -> list[tuple[str, int]]:
-    """The readout's input columns in order, as (name, count): what a refit keeps of a source's first layer
-    (``research/perception_arms.py``)."""
-    layout = [("keypoints", 2 * (config.keypoints + config.fine_keypoints))]
-    if config.readout_global:
-        layout.append(("global", 8 * config.width))
-    layout.append(("hand", HAND_FEATURES))
-    if config.geometric:
-        layout.append(("geometry", GEOMETRY_FEATURES))
-    if config.keypoint_values:
-        layout.append(("values", config.fine_keypoints * config.keypoint_values))
-    return layout
+        fine = self.fine.locate(stride8)[0]
+        features = torch.cat([r.pool(last), fine.flatten(1), last.mean(dim=(2, 3))], dim=-1)
+        return features, self.readout(torch.cat([features, hand], dim=-1)), fine

@@ -119,10 +119,6 @@ class RecipeConfig:
     (``DistillConfig.near_loss``)."""
     seen_share: float | None = None
     """The share of each fit's batches drawn from the seen kinds' steps (``DistillConfig.seen_share``)."""
-    fine_stride: int = 8
-    """The fine keypoints' stride, 8 or 4 (``StudentConfig.fine_stride``)."""
-    geometric: bool = False
-    """The readout also reads the keypoints' difference and depths (``StudentConfig.geometric``)."""
     ddim_steps: int = 4
     workers: int = 2
     """Rollout processes (collection and evaluation)."""
@@ -137,8 +133,7 @@ class RecipeConfig:
     def student(self) -> StudentConfig:
         return StudentConfig(perception=self.perception, width=self.width, head_dims=self.head_dims,
                              state_features=self.state_features, exec_horizon=self.exec_horizon,
-                             prediction=self.prediction, fine_stride=self.fine_stride,
-                             geometric=self.geometric)
+                             prediction=self.prediction)
 
     def spec(self) -> DepthSpec:
         width, _, height = self.resolution.partition("x")
