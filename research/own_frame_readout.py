@@ -23,13 +23,12 @@ import json
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from hil_sim.world import CAMERA_POS, CAMERA_TARGET
 from trainer.dataset import DemoStore
 from trainer.sim.labels import HAND_PX, OBJECT_PX, OFFSET, READOUT
-from trainer.student import checkpoint
-from trainer.student.readout import OFF_TARGET_M, errors, readouts
+from trainer.student.perception import SUPERVISED_KEYPOINTS
+from trainer.student.readout import OFF_TARGET_M, errors, perceive_store
 from trainer.student.steps import LabelledSteps
 
 BINS_PX = (0, 2, 4, 8, 16, 1000)
@@ -39,21 +38,13 @@ SIGHT = _LOOK / np.linalg.norm(_LOOK)
 ACROSS = np.array([-SIGHT[1], SIGHT[0]])
 
 
-def keypoints(ckpt: Path, store: Path, batch: int = 512) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Predicted and labelled object and hand keypoints [N, 2, 2] in [-1, 1] image coordinates, and the
-    pixels per unit of those coordinates (x, y)."""
-    net = checkpoint.load(ckpt).policy()
-    cfg = net.config
-    steps = LabelledSteps([store], cfg.obs_horizon, cfg.action_horizon, depth=True, device="cpu")
-    out = []
-    with torch.no_grad():
-        for start in range(0, len(steps), batch):
-            b = steps.batch(torch.arange(start, min(start + batch, len(steps))))
-            out.append(net.perceive(b.depth, b.state)[2][:, :2].float().numpy())
+def keypoints(fine: np.ndarray, steps: LabelledSteps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The supervised keypoints ``fine[:, :2]`` and their labels (object, hand) [N, 2, 2] in [-1, 1] image
+    coordinates, and the pixels per unit of those coordinates (x, y)."""
     labels = steps.labels_np
     truth = np.stack([labels[:, OBJECT_PX], labels[:, HAND_PX]], axis=1)
     px_per_unit = (np.array([steps.spec.out_width, steps.spec.out_height], float) - 1) / 2
-    return np.concatenate(out), truth, px_per_unit
+    return fine[:, :SUPERVISED_KEYPOINTS], truth, px_per_unit
 
 
 def _median_px(a: np.ndarray, b: np.ndarray) -> float:
@@ -127,8 +118,9 @@ def main() -> None:
     a = p.parse_args()
     weights = fit_map(a.fit) if a.fit else None
     for store in a.stores:
-        pred, true_px, px_per_unit = keypoints(a.checkpoint, store)
-        learned, labels = readouts(a.checkpoint, store)
+        learned, fine, steps = perceive_store(a.checkpoint, store)
+        pred, true_px, px_per_unit = keypoints(fine, steps)
+        labels = steps.labels_np[:, :READOUT]
         row = {"store": str(store), "bins": bins(pred, true_px, px_per_unit), "sight": sight(learned, labels)}
         if weights is not None:
             ends = DemoStore.open(store).episode_ends

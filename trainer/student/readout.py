@@ -36,15 +36,25 @@ OFF_TARGET_M = (0.007, 0.02)
 def readouts(ckpt_path: Path, store: Path, device: torch.device | str = "cpu",
              batch: int = 512) -> tuple[np.ndarray, np.ndarray]:
     """The student's readout of every frame of ``store`` and the frames' labels, both [N, READOUT], metres."""
+    facts, _, steps = perceive_store(ckpt_path, store, device, batch)
+    return facts, steps.labels_np[:, :READOUT]
+
+
+def perceive_store(ckpt_path: Path, store: Path, device: torch.device | str = "cpu", batch: int = 512
+                   ) -> tuple[np.ndarray, np.ndarray, LabelledSteps]:
+    """The student's readout of every frame of ``store`` [N, READOUT] (metres), its fine keypoints [N, K, 2]
+    ([-1, 1] image coordinates) and the store's labelled steps."""
     net = checkpoint.load(ckpt_path).policy().to(device)
     cfg = net.config
     steps = LabelledSteps([store], cfg.obs_horizon, cfg.action_horizon, depth=True, device=device)
-    out = []
+    facts, keypoints = [], []
     with torch.no_grad():
         for start in range(0, len(steps), batch):
             b = steps.batch(torch.arange(start, min(start + batch, len(steps))))
-            out.append(net.label_norm.unnormalise(net.perceive(b.depth, b.state)[1]).cpu().numpy())
-    return np.concatenate(out), steps.labels_np[:, :READOUT]
+            _, read, fine = net.perceive(b.depth, b.state)
+            facts.append(net.label_norm.unnormalise(read).float().cpu().numpy())
+            keypoints.append(fine.float().cpu().numpy())
+    return np.concatenate(facts), np.concatenate(keypoints), steps
 
 
 def offset_errors(estimate: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
