@@ -58,15 +58,15 @@ class SpatialSoftmax(nn.Module):
         self.out_features = 2 * keypoints
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.locate(x)[0].flatten(1)
+        return self.locate(x).flatten(1)
 
-    def locate(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(keypoints [B, K, 2], their attention over the map's cells [B, K, h*w])."""
+    def locate(self, x: torch.Tensor) -> torch.Tensor:
+        """The keypoints [B, K, 2]: the cells' positions weighted by each map's softmax over them."""
         _, _, h, w = x.shape
         grid = torch.stack([_coords(w, x.device).repeat(h), _coords(h, x.device).repeat_interleave(w)],
                            dim=-1)  # [h*w, (x, y)]
         attention = torch.softmax(self.keypoints(x).flatten(2), dim=-1)
-        return attention @ grid, attention
+        return attention @ grid
 
 
 def _coords(n: int, device: torch.device) -> torch.Tensor:
@@ -113,6 +113,6 @@ class Perception(nn.Module):
         r = self.resnet
         stride8 = r.blocks[:4](r.stem(depth))  # stages 1 and 2
         last = r.blocks[4:](stride8)
-        fine = self.fine.locate(stride8)[0]
+        fine = self.fine.locate(stride8)
         features = torch.cat([r.pool(last), fine.flatten(1), last.mean(dim=(2, 3))], dim=-1)
         return features, self.readout(torch.cat([features, hand], dim=-1)), fine
