@@ -41,10 +41,19 @@ ACROSS = np.array([-SIGHT[1], SIGHT[0]])
 def keypoints(fine: np.ndarray, steps: LabelledSteps) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The supervised keypoints ``fine[:, :2]`` and their labels (object, hand) [N, 2, 2] in [-1, 1] image
     coordinates, and the pixels per unit of those coordinates (x, y)."""
-    labels = steps.labels_np
-    truth = np.stack([labels[:, OBJECT_PX], labels[:, HAND_PX]], axis=1)
+    truth = label_pixels(steps.labels_np)
     px_per_unit = (np.array([steps.spec.out_width, steps.spec.out_height], float) - 1) / 2
     return fine[:, :SUPERVISED_KEYPOINTS], truth, px_per_unit
+
+
+def label_pixels(labels: np.ndarray) -> np.ndarray:
+    """The labelled object and hand pixels [N, 2, 2] in [-1, 1] image coordinates."""
+    return np.stack([labels[:, OBJECT_PX], labels[:, HAND_PX]], axis=1)
+
+
+def in_view(pixels: np.ndarray) -> np.ndarray:
+    """Frames [N] whose two pixels [N, 2, 2] both lie inside the image."""
+    return (np.abs(pixels) <= 1).all(axis=(1, 2))
 
 
 def _median_px(a: np.ndarray, b: np.ndarray) -> float:
@@ -52,7 +61,7 @@ def _median_px(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def bins(pred: np.ndarray, truth: np.ndarray, px_per_unit: np.ndarray) -> list[dict]:
-    both_seen = (np.abs(truth) <= 1).all(axis=(1, 2))
+    both_seen = in_view(truth)
     pred, truth = pred * px_per_unit, truth * px_per_unit
     true_vec, pred_vec = truth[:, 0] - truth[:, 1], pred[:, 0] - pred[:, 1]
     dist = np.linalg.norm(true_vec, axis=1)
@@ -90,8 +99,8 @@ def quadratic(pixels: np.ndarray) -> np.ndarray:
 def fit_map(store: Path) -> np.ndarray:
     """Least-squares weights [28, 2], true pixels -> horizontal offset, on frames with both in view."""
     labels = LabelledSteps([store], 1, 1, depth=False).labels_np
-    pixels = np.stack([labels[:, OBJECT_PX], labels[:, HAND_PX]], axis=1)
-    m = (np.abs(pixels) <= 1).all(axis=(1, 2))
+    pixels = label_pixels(labels)
+    m = in_view(pixels)
     return np.linalg.lstsq(quadratic(pixels[m]), labels[m, OFFSET][:, :2], rcond=None)[0]
 
 

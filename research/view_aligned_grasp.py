@@ -20,7 +20,7 @@ import numpy as np
 from research.own_frame_readout import ACROSS, SIGHT
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import run_episode, schedule
-from trainer.teacher.scripted import ReactiveExpert, nearest_turn
+from trainer.teacher.scripted import ReactiveExpert, fingers_yaw, nearest_turn
 
 
 class AimedExpert(ReactiveExpert):
@@ -37,7 +37,7 @@ class AimedExpert(ReactiveExpert):
     def _grasp_yaw(self, obj_quat: np.ndarray, rot: np.ndarray) -> float:
         if self.closing == "wrist" or not self.round_in_plan():
             return super()._grasp_yaw(obj_quat, rot)
-        return nearest_turn(np.arctan2(rot[1, 1], rot[0, 1]), np.arctan2(SIGHT[1], SIGHT[0]))
+        return nearest_turn(fingers_yaw(rot), np.arctan2(SIGHT[1], SIGHT[0]))
 
 
 def main() -> None:

@@ -146,7 +146,7 @@ class ScriptedExpert:
 
     def _grasp_yaw(self, obj_quat: np.ndarray, rot: np.ndarray) -> float:
         """Closing direction across the object's narrow horizontal axis, the one nearest the hand's now."""
-        now = np.arctan2(rot[1, 1], rot[0, 1])
+        now = fingers_yaw(rot)
         if self.round_in_plan():
             return now  # turning the wrist only costs time
         mat = np.zeros(9)
@@ -193,6 +193,11 @@ def _holding(priv: np.ndarray, ee: np.ndarray) -> bool:
     rel = priv[OBJECT_POSITION] - ee
     return bool(np.linalg.norm(rel[:2]) < 0.03 and -0.07 < rel[2] < 0.03
                 and priv[FINGERS].sum() > _SHUT_M)
+
+
+def fingers_yaw(rot: np.ndarray) -> float:
+    """The yaw of the fingers' closing axis (the hand frame's y, ``_top_down``) of a hand rotation."""
+    return float(np.arctan2(rot[1, 1], rot[0, 1]))
 
 
 def nearest_turn(now: float, yaw: float) -> float:
