@@ -25,7 +25,7 @@ import zarr
 from torch import nn
 
 from hil_sim.world import World
-from trainer.sim.labels import HAND_PX, OBJECT_PX, OFFSET
+from trainer.sim.labels import HAND_PX, OBJECT_PX, OFFSET, project
 from trainer.student.model import hand_pose
 
 
@@ -84,8 +84,9 @@ def load(spec: str) -> dict:
         hand = hand_pose(state).numpy()
     lengths = np.diff(np.concatenate([[0], ends]))[a:b]
     episode = np.repeat(np.arange(b - a), lengths)
-    pads, sight = pad_pixels(z, rows, episode + a, np.asarray(z["data/labels"][rows]))
-    return {"labels": np.asarray(z["data/labels"][rows]), "depth": np.asarray(z["data/depth"][rows]),
+    labels = np.asarray(z["data/labels"][rows])
+    pads, sight = pad_pixels(z, rows, episode + a, labels)
+    return {"labels": labels, "depth": np.asarray(z["data/depth"][rows]),
             "hand": hand, "episode": episode, "pads": pads, "sight": sight}
 
 
@@ -108,25 +109,14 @@ def pad_pixels(z, rows: slice, episode: np.ndarray, labels: np.ndarray) -> tuple
         mujoco.mj_kinematics(w.model, w.data)
         site, fingers = w.data.site_xpos[ids.ee_site], w.data.xpos[list(ids.fingers)]
         level = site - fingers.mean(0)  # from the fingers' bases to the pads' height
-        intr = w.intr.window(*crops[e], w.spec)
-        project = _projector(extr[e], intr, w.spec)
-        pads[i] = [project(f + level) for f in fingers]
-        hand_px.append(project(site))
+        pads[i] = [project(f + level, extr[e], crops[e], w) for f in fingers]
+        hand_px.append(project(site, extr[e], crops[e], w))
         to_object = site + labels[i, OFFSET] - extr[e][:3, 3]
         sight[i] = to_object / np.linalg.norm(to_object)
     err = np.abs(np.array(hand_px) - labels[:, HAND_PX]).max()
     assert err < 5e-3, f"recomputed grasp-site pixels are {err:.4f} off their labels"  # 0.3 px: float32 state
     return pads, sight
 
-
-def _projector(extrinsics: np.ndarray, intr, spec):
-    rot, origin = extrinsics[:3, :3], extrinsics[:3, 3]
-
-    def project(point: np.ndarray) -> np.ndarray:
-        x, y, zc = rot.T @ (point - origin)
-        u, v = intr.fx * x / zc + intr.cx, intr.fy * y / zc + intr.cy
-        return np.array([2 * u / (spec.out_width - 1) - 1, 2 * v / (spec.out_height - 1) - 1])
-    return project
 
 
 def merged(stores: list[dict]) -> dict:

@@ -53,10 +53,15 @@ def _axis(quat: np.ndarray, i: int) -> np.ndarray:
 
 def pixel(world: World, point: np.ndarray) -> np.ndarray:
     """A world point's position in the policy image, in spatial-softmax coordinates ([-1, 1] edge centres)."""
-    spec, ep = world.spec, world.episode
-    intr = world.intr.window(*ep.crop_window, spec)
-    pose = world.camera_extrinsics()  # the policy camera shares the stream camera's pose
-    x, y, z = pose[:3, :3].T @ (np.asarray(point, float) - pose[:3, 3])
+    # the policy camera shares the stream camera's pose
+    return project(point, world.camera_extrinsics(), world.episode.crop_window, world)
+
+
+def project(point: np.ndarray, extrinsics: np.ndarray, crop_window, world: World) -> np.ndarray:
+    """``pixel`` for a camera given by its world-from-camera ``extrinsics`` and ``crop_window`` (as a store's
+    ``meta`` records them per episode), with ``world``'s intrinsics and depth spec."""
+    spec, intr = world.spec, world.intr.window(*crop_window, world.spec)
+    x, y, z = extrinsics[:3, :3].T @ (np.asarray(point, float) - extrinsics[:3, 3])
     z = max(z, 1e-6)  # behind the camera: far off the image either way
     u, v = intr.fx * x / z + intr.cx, intr.fy * y / z + intr.cy
     return np.array([2 * u / (spec.out_width - 1) - 1, 2 * v / (spec.out_height - 1) - 1])
