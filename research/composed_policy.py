@@ -7,7 +7,7 @@ this grasps far more often than the depth student itself, its head is what loses
 raw features, which its own states never taught), not the readout's error.
 
     python research/composed_policy.py DEPTH_STUDENT.onnx HEAD_CKPT [--objects seen] [--episodes 60] \
-        [--true offset yaw size]
+        [--true offset | offset_xy offset_z, yaw size]
 
 ``--true`` takes those facts from the simulator instead of the readout: which fact's error costs the grasps.
 
@@ -36,7 +36,7 @@ from trainer.sim.rollout import Job, run_episode
 from trainer.student import checkpoint
 from trainer.student.oracle_policy import OraclePolicy
 
-GROUPS = {"offset": OFFSET, "yaw": GRASP_YAW, "size": SIZE}
+GROUPS = {"offset": OFFSET, "offset_xy": slice(0, 2), "offset_z": slice(2, 3), "yaw": GRASP_YAW, "size": SIZE}
 
 
 class ComposedPolicy(OraclePolicy):
@@ -70,6 +70,21 @@ class ComposedPolicy(OraclePolicy):
         return super().act(obs)
 
 
+def grasp_rate(policy: ComposedPolicy, objects: str, episodes: int) -> dict:
+    """``policy``'s success over ``episodes`` of ``objects`` (seeds 10000.., kinds in turn), with its interval
+    and by kind."""
+    kinds = select_kinds(objects)
+    env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=policy.meta.preprocess))
+    by_kind: dict[str, list[bool]] = {}
+    for i in range(episodes):
+        job = Job(10_000 + i, kinds[i % len(kinds)])
+        by_kind.setdefault(job.kind, []).append(bool(run_episode(env, policy, job).success))
+        print(f"{i + 1}/{episodes}: {sum(map(sum, by_kind.values()))} grasped", flush=True)
+    wins = sum(map(sum, by_kind.values()))
+    return {"success": wins / episodes, "ci95": list(wilson_interval(wins, episodes)), "episodes": episodes,
+            "by_kind": {k: sum(v) / len(v) for k, v in by_kind.items()}}
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("student", type=Path)
@@ -79,19 +94,8 @@ def main() -> None:
     p.add_argument("--true", nargs="*", default=[], choices=sorted(GROUPS))
     p.add_argument("--out", type=Path)
     args = p.parse_args()
-    kinds = select_kinds(args.objects)
     policy = ComposedPolicy(args.student, args.head, tuple(args.true))
-    env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=policy.meta.preprocess))
-    by_kind: dict[str, list[bool]] = {}
-    for i in range(args.episodes):
-        job = Job(10_000 + i, kinds[i % len(kinds)])
-        by_kind.setdefault(job.kind, []).append(bool(run_episode(env, policy, job).success))
-        done = sum(map(sum, by_kind.values()))
-        print(f"{i + 1}/{args.episodes}: {done} grasped", flush=True)
-    wins = sum(map(sum, by_kind.values()))
-    lo, hi = wilson_interval(wins, args.episodes)
-    result = {"true": args.true, "success": wins / args.episodes, "ci95": [lo, hi], "episodes": args.episodes,
-              "by_kind": {k: sum(v) / len(v) for k, v in by_kind.items()}}
+    result = {"true": args.true, **grasp_rate(policy, args.objects, args.episodes)}
     print(json.dumps(result))
     if args.out:
         args.out.write_text(json.dumps(result, indent=1))

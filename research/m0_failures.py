@@ -6,9 +6,11 @@ centre's offset from the grasp site, and how far the fingers' closing axis is tu
 axis (0 degrees: the fingers close across the object's narrow side; round kinds have no such axis). Prints the
 medians for the successes and the failures apart, then each failure. With ``--takeover`` the expert
 (``ReactiveExpert``) drives from the policy's first close on: if that grasps, the policy's approach and close
-were good enough and what it did after them lost the episode.
+were good enough and what it did after them lost the episode. With ``--retry`` a scripted reflex opens the
+gripper and lifts the hand 8 cm whenever it has closed on nothing, then gives the policy back: the ceiling of
+teaching the policy to try again after a missed close (its own perception still aims the second try).
 
-    python research/m0_failures.py oracle:CKPT [--kinds banana pear] [--episodes 40] [--takeover]
+    python research/m0_failures.py oracle:CKPT [--kinds banana pear] [--episodes 40] [--takeover | --retry]
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, OFFSET, frame_labels
 from trainer.sim.rollout import run_episode, schedule
 from trainer.student.model import hand_pose, into_fingers
-from trainer.teacher.scripted import ReactiveExpert
+from trainer.teacher.scripted import _SHUT_M, Phase, ReactiveExpert, ScriptedExpert
 
 
 def yaw_error_deg(labels: np.ndarray, state: np.ndarray) -> float:
@@ -76,20 +78,72 @@ class Takeover(FirstClose):
         return self.expert.act(observation) if self.closed else action
 
 
+class Rise(ScriptedExpert):
+    """Opens the gripper and moves the hand straight up by ``RISE_M`` from where ``start`` found it."""
+
+    RISE_M = 0.08
+    goal = np.zeros(3)
+
+    def start(self, privileged: np.ndarray) -> None:
+        self.goal = self._kin.site(np.asarray(privileged)[:9])[0] + [0.0, 0.0, self.RISE_M]
+
+    def _plan(self, priv, ee, rot):
+        self._phase = Phase.APPROACH
+        return self.goal, rot, -1.0
+
+
+class Retry(FirstClose):
+    """The policy, but whenever its gripper has shut on nothing a reflex opens it and lifts the hand 8 cm
+    (at most 8 steps), then the policy drives again from an empty action queue."""
+
+    def __init__(self, policy, env: GraspEnv) -> None:
+        super().__init__(policy, env)
+        self.rise, self.left, self.retries, self.last_gripper = Rise(), 0, 0, -1.0
+
+    def reset(self, info: dict) -> None:
+        super().reset(info)
+        self.rise.reset(info)
+        self.left, self.retries, self.last_gripper = 0, 0, -1.0
+
+    def act(self, observation: Observation) -> np.ndarray:
+        state = observation.state
+        shut = self.closed and self.last_gripper > 0 and state[7] < _SHUT_M
+        if shut and not self.left:
+            self.left, self.retries = 8, self.retries + 1
+            self.rise.start(observation.privileged)
+        if self.left:
+            self.left -= 1
+            if not self.left:
+                self.policy.queue.clear()
+            action = self.rise.act(observation)
+            self.last_gripper = -1.0
+            return action
+        action = super().act(observation)
+        self.last_gripper = float(action[7])
+        return action
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("policy")
     p.add_argument("--kinds", nargs="+", default=["banana", "pear"])
     p.add_argument("--episodes", type=int, default=40)
-    p.add_argument("--takeover", action="store_true", help="the expert drives from the policy's first close")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--takeover", action="store_true",
+                      help="the expert drives from the policy's first close")
+    mode.add_argument("--retry", action="store_true", help="a reflex opens and lifts after each missed close")
     args = p.parse_args()
     kinds = tuple(args.kinds)
     env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=depth_spec(args.policy)))
-    policy = (Takeover if args.takeover else FirstClose)(make_policy(args.policy), env)
+    wrapper = Takeover if args.takeover else Retry if args.retry else FirstClose
+    policy = wrapper(make_policy(args.policy), env)
     rows = []
     for job in schedule(kinds, 10_000, args.episodes):
         rollout = run_episode(env, policy, job)
         rows.append((job.kind, rollout.success, rollout.steps, *policy.close))
+        if args.retry and policy.retries:
+            outcome = "grasped" if rollout.success else "lost"
+            print(f"  {job.kind} seed {job.seed}: {policy.retries} retries, {outcome}")
     for success in (True, False):
         chosen = [row for row in rows if row[1] == success]
         if chosen:
