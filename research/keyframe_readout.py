@@ -103,7 +103,9 @@ def fit(args: argparse.Namespace) -> None:
 
 
 def high_m(ckpt_path: Path) -> float | None:
-    high = json.loads((ckpt_path.parent / "keyframe.json").read_text())["high_cm"]
+    """The keyframe height (m) a checkpoint was fitted with; None without one (e.g. a recipe round)."""
+    marker = ckpt_path.parent / "keyframe.json"
+    high = json.loads(marker.read_text())["high_cm"] if marker.is_file() else None
     return None if high is None else high / 100
 
 
