@@ -71,18 +71,20 @@ class ComposedPolicy(OraclePolicy):
 
 
 def grasp_rate(policy: ComposedPolicy, objects: str, episodes: int) -> dict:
-    """``policy``'s success over ``episodes`` of ``objects`` (seeds 10000.., kinds in turn), with its interval
-    and by kind."""
+    """``policy``'s success over ``episodes`` of ``objects`` (seeds 10000.., kinds in turn): with its
+    interval, by kind and episode by episode (to pair two policies on the same seeds)."""
     kinds = select_kinds(objects)
     env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=policy.meta.preprocess))
     by_kind: dict[str, list[bool]] = {}
+    grasped = []
     for i in range(episodes):
         job = Job(10_000 + i, kinds[i % len(kinds)])
-        by_kind.setdefault(job.kind, []).append(bool(run_episode(env, policy, job).success))
-        print(f"{i + 1}/{episodes}: {sum(map(sum, by_kind.values()))} grasped", flush=True)
-    wins = sum(map(sum, by_kind.values()))
+        grasped.append(bool(run_episode(env, policy, job).success))
+        by_kind.setdefault(job.kind, []).append(grasped[-1])
+        print(f"{i + 1}/{episodes}: {sum(grasped)} grasped", flush=True)
+    wins = sum(grasped)
     return {"success": wins / episodes, "ci95": list(wilson_interval(wins, episodes)), "episodes": episodes,
-            "by_kind": {k: sum(v) / len(v) for k, v in by_kind.items()}}
+            "by_kind": {k: sum(v) / len(v) for k, v in by_kind.items()}, "grasped": grasped}
 
 
 def main() -> None:
