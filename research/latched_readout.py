@@ -25,8 +25,11 @@ import numpy as np
 import torch
 
 from research.composed_policy import ComposedPolicy, grasp_rate
+from runtime.preprocess import normalise
+from trainer.dataset import DEPTH_SCALE
 from trainer.sim.labels import OFFSET
 from trainer.student.model import hand_pose
+from trainer.student.oracle_policy import OraclePolicy
 
 HIGH_M = (0.12, 0.30)
 """Heights of the grasp site over the table whose readings are averaged: above every seen kind's top."""
@@ -45,19 +48,28 @@ class LatchedPolicy(ComposedPolicy):
         super().reset(env_info)
         self.total, self.count = np.zeros(3), 0
 
-    def read_facts(self, obs) -> np.ndarray:
-        row = super().read_facts(obs)
+    def act(self, obs) -> np.ndarray:
+        """Every frame enters the stack and, while the gripper is open, the latch; the head runs per chunk."""
         if not self.latch:
-            return row
+            return super().act(obs)
+        self.stack = self.frames.push(normalise(obs.depth, DEPTH_SCALE, self.meta.preprocess))
         if obs.state[7] < OPEN_M:
             self.total, self.count = np.zeros(3), 0
-            return row
-        hand = hand_pose(torch.from_numpy(obs.state[None].astype(np.float32)))[0, :3].numpy()
-        if HIGH_M[0] <= hand[2] < HIGH_M[1] and np.linalg.norm(row[OFFSET][:2]) < NEAR_M:
-            self.total, self.count = self.total + hand + row[OFFSET], self.count + 1
-        if self.count:
-            row[OFFSET] = self.total / self.count - hand
+        else:
+            row, hand = ComposedPolicy.read_facts(self, obs), self.hand(obs)
+            if HIGH_M[0] <= hand[2] < HIGH_M[1] and np.linalg.norm(row[OFFSET][:2]) < NEAR_M:
+                self.total, self.count = self.total + hand + row[OFFSET], self.count + 1
+        return OraclePolicy.act(self, obs)
+
+    def read_facts(self, obs) -> np.ndarray:
+        row = super().read_facts(obs)
+        if self.latch and self.count and obs.state[7] >= OPEN_M:
+            row[OFFSET] = self.total / self.count - self.hand(obs)
         return row
+
+    @staticmethod
+    def hand(obs) -> np.ndarray:
+        return hand_pose(torch.from_numpy(obs.state[None].astype(np.float32)))[0, :3].numpy()
 
 
 def main() -> None:
