@@ -2,11 +2,10 @@
 hand was still high over the table.
 
 On its own episodes the shipped readout reads the object's offset along the camera's line of sight well
-while the hand is 6-15 cm above the object (0.4-0.5 cm off, half of a near miss reported) and is blind once
-the fingers are down beside it (0.8-1.1 cm off, a quarter or less reported): at grasp height hand and object
-overlap in the image. The object does not move before the fingers touch it and the camera does not move at
-all, so the frame taken when the hand was last high still shows where the object lies, in the same pixels
-and depths as the current frame shows the hand.
+while the hand is 6-15 cm above the object (0.46 cm off along it, median) and is blind once the fingers are
+down beside it (0.87 cm off): at grasp height hand and object overlap in the image. The object does not move
+before the fingers touch it and the camera does not move at all, so the frame taken when the hand was last
+high still shows where the object lies, in the same pixels and depths as the current frame shows the hand.
 
 Here the stack's oldest frame is replaced by that *keyframe*: the last frame of the episode so far with the
 hand (forward kinematics of the stored joints) at least ``--high-cm`` above the table (the episode's first
@@ -15,12 +14,8 @@ input channel (its first-convolution weights zero at the start, so the net begin
 round's stores; ``score`` reads a labelled store as ``trainer student readout`` does, near the object and by
 the hand's height.
 
-    python research/keyframe_readout.py fit RECIPE --round 6 --steps 3000 --out runs/keyframe [--control]
+    python research/keyframe_readout.py fit RECIPE --round 6 --steps 3000 --out runs/keyframe
     python research/keyframe_readout.py score runs/keyframe/ckpt.pt --store probe.zarr
-    python research/keyframe_readout.py drive runs/keyframe/ckpt.pt --student ROUND.onnx --head M0.pt \
-        --objects seen --episodes 180
-
-``--control`` continues the same fit without the keyframe (3 frames), for a side-by-side.
 """
 
 from __future__ import annotations
@@ -33,16 +28,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from research.composed_policy import ComposedPolicy, grasp_rate
 from research.own_frame_readout import ACROSS, SIGHT
-from runtime.preprocess import normalise
-from trainer.dataset import DEPTH_SCALE, DemoStore
+from trainer.dataset import DemoStore
 from trainer.sim.labels import OFFSET, READOUT
 from trainer.student import checkpoint
 from trainer.student.checkpoint import Checkpoint
 from trainer.student.distill import distill
 from trainer.student.model import hand_pose
-from trainer.student.oracle_policy import OraclePolicy
 from trainer.student.readout import errors
 from trainer.student.recipe import Recipe, RecipeConfig, stored_settings
 from trainer.student.steps import LabelledSteps
@@ -94,10 +86,10 @@ def fit(args: argparse.Namespace) -> None:
     source = checkpoint.load(recipe.run_dir(args.round) / "ckpt.pt")
     args.out.mkdir(parents=True, exist_ok=True)
     init = args.out / "init.pt"
-    start = source if args.control else widened(source)
+    start = widened(source)
     checkpoint.save(init, start)
-    data = keyed_steps(recipe.stores(args.round), start.config, None if args.control else args.high_cm / 100)
-    (args.out / "keyframe.json").write_text(json.dumps({"high_cm": None if args.control else args.high_cm}))
+    data = keyed_steps(recipe.stores(args.round), start.config, args.high_cm / 100)
+    (args.out / "keyframe.json").write_text(json.dumps({"high_cm": args.high_cm}))
     summary = distill(data, args.out, start.config, recipe.cfg.distill(args.steps), source.info, init)
     print(json.dumps(summary))
 
@@ -130,36 +122,6 @@ def score(args: argparse.Namespace) -> None:
               f"{np.median(along):.2f} cm, across {np.median(across):.2f} cm")
 
 
-class KeyframePolicy(ComposedPolicy):
-    """``ComposedPolicy`` reading with ``eye``; with ``high`` (m) its stack leads with the last frame seen
-    with the hand that high (the first frame until then), as ``keyed_steps`` stacks the training steps."""
-
-    def __init__(self, onnx_path: Path, head_path: Path, eye: Path, high: float | None) -> None:
-        super().__init__(onnx_path, head_path)
-        self.eye, self.high, self.key = checkpoint.load(eye).policy(), high, None
-
-    def reset(self, env_info: dict) -> None:
-        super().reset(env_info)
-        self.key = None
-
-    def act(self, obs):
-        frame = normalise(obs.depth, DEPTH_SCALE, self.meta.preprocess)
-        if self.key is None or (self.high is not None and hand_height(obs.state[None])[0] >= self.high):
-            self.key = frame
-        if len(self.queue) < self.meta.obs_horizon:  # the frames the next chunk's stack holds
-            recent = self.frames.push(frame)
-            self.stack = recent if self.high is None else np.concatenate([self.key[None], recent])
-        return OraclePolicy.act(self, obs)
-
-
-def drive(args: argparse.Namespace) -> None:
-    policy = KeyframePolicy(args.student, args.head, args.checkpoint, high_m(args.checkpoint))
-    result = {"checkpoint": str(args.checkpoint), **grasp_rate(policy, args.objects, args.episodes)}
-    print(json.dumps(result))
-    if args.out:
-        args.out.write_text(json.dumps(result, indent=1))
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -168,20 +130,12 @@ def main() -> None:
     f.add_argument("--round", type=int, required=True)
     f.add_argument("--steps", type=int, default=3000)
     f.add_argument("--high-cm", type=float, default=12.0)
-    f.add_argument("--control", action="store_true")
     f.add_argument("--out", type=Path, required=True)
     s = sub.add_parser("score")
     s.add_argument("checkpoint", type=Path)
     s.add_argument("--store", type=Path, required=True)
-    d = sub.add_parser("drive")
-    d.add_argument("checkpoint", type=Path)
-    d.add_argument("--student", type=Path, required=True, help="the round's ONNX file: crop and frame stack")
-    d.add_argument("--head", type=Path, required=True, help="the privileged head (M0) checkpoint")
-    d.add_argument("--objects", default="seen")
-    d.add_argument("--episodes", type=int, default=180)
-    d.add_argument("--out", type=Path)
     args = p.parse_args()
-    {"fit": fit, "score": score, "drive": drive}[args.command](args)
+    {"fit": fit, "score": score}[args.command](args)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 On its own episodes the depth student's readout reads the object's offset from the hand well while the hand
 is high over the table and poorly once the fingers are down beside the object (along the camera's line of
-sight: 0.45 cm off with the hand 6-15 cm above the object, 0.87 cm at grasp height; ``keyframe_readout.py
+sight: 0.46 cm off with the hand 6-15 cm above the object, 0.87 cm at grasp height; ``keyframe_readout.py
 score``): at grasp height hand and object overlap in the image. Until the fingers touch it the object does
 not move, so its place in the robot's base frame, the hand's (forward kinematics) plus the readout's offset,
 can be averaged over the frames in which the hand was high and the readout said the object was near, and the
