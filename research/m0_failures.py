@@ -93,8 +93,10 @@ class Rise(ScriptedExpert):
 
 
 class Retry(FirstClose):
-    """The policy, but whenever its gripper has shut on nothing a reflex opens it and lifts the hand 8 cm
-    (at most 8 steps), then the policy drives again from an empty action queue."""
+    """The policy, but whenever its gripper has shut on nothing a reflex opens it and lifts the hand
+    (``Rise``, for ``STEPS`` steps), then the policy drives again from an empty action queue."""
+
+    STEPS = 8
 
     def __init__(self, policy, env: GraspEnv) -> None:
         super().__init__(policy, env)
@@ -109,7 +111,7 @@ class Retry(FirstClose):
         state = observation.state
         shut = self.closed and self.last_gripper > 0 and state[7] < _SHUT_M
         if shut and not self.left:
-            self.left, self.retries = 8, self.retries + 1
+            self.left, self.retries = self.STEPS, self.retries + 1
             self.rise.start(observation.privileged)
         if self.left:
             self.left -= 1
