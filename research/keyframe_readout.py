@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from research import readout_probes
 from research.own_frame_readout import ACROSS, SIGHT
 from trainer.dataset import DemoStore
 from trainer.sim.labels import OFFSET, READOUT
@@ -104,12 +105,7 @@ def high_m(ckpt_path: Path) -> float | None:
 def score(args: argparse.Namespace) -> None:
     net = checkpoint.load(args.checkpoint).policy()
     steps = keyed_steps([args.store], net.config, high_m(args.checkpoint))
-    facts = []
-    with torch.no_grad():
-        for s in range(0, len(steps), 512):
-            b = steps.batch(torch.arange(s, min(s + 512, len(steps))))
-            facts.append(net.label_norm.unnormalise(net.perceive(b.depth, b.state)[1]).float().numpy())
-    estimate, labels = np.concatenate(facts), steps.labels_np[:, :READOUT]
+    estimate, labels = readout_probes.read(net, steps), steps.labels_np[:, :READOUT]
     result = errors(estimate, labels, DemoStore.open(args.store).episode_ends)
     print(json.dumps({k: result[k] for k in ("near", "off_target")}))
     true, read = labels[:, OFFSET], estimate[:, OFFSET]

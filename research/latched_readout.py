@@ -42,7 +42,7 @@ OPEN_M = 0.075
 class LatchedPolicy(ComposedPolicy):
     def __init__(self, onnx_path: Path, head_path: Path, latch: bool = True) -> None:
         super().__init__(onnx_path, head_path)
-        self.latch, self.total, self.count = latch, np.zeros(3), 0
+        self.latch, self.total, self.count, self.row = latch, np.zeros(3), 0, None
 
     def reset(self, env_info: dict) -> None:
         super().reset(env_info)
@@ -53,17 +53,20 @@ class LatchedPolicy(ComposedPolicy):
         if not self.latch:
             return super().act(obs)
         self.stack = self.frames.push(normalise(obs.depth, DEPTH_SCALE, self.meta.preprocess))
+        self.row = super().read_facts(obs)  # this frame's readout, which the head reads if it runs now
         if obs.state[7] < OPEN_M:
             self.total, self.count = np.zeros(3), 0
         else:
-            row, hand = ComposedPolicy.read_facts(self, obs), self.hand(obs)
-            if HIGH_M[0] <= hand[2] < HIGH_M[1] and np.linalg.norm(row[OFFSET][:2]) < NEAR_M:
-                self.total, self.count = self.total + hand + row[OFFSET], self.count + 1
+            hand = self.hand(obs)
+            if HIGH_M[0] <= hand[2] < HIGH_M[1] and np.linalg.norm(self.row[OFFSET][:2]) < NEAR_M:
+                self.total, self.count = self.total + hand + self.row[OFFSET], self.count + 1
         return OraclePolicy.act(self, obs)
 
     def read_facts(self, obs) -> np.ndarray:
-        row = super().read_facts(obs)
-        if self.latch and self.count and obs.state[7] >= OPEN_M:
+        if not self.latch:
+            return super().read_facts(obs)
+        row = self.row.copy()
+        if self.count and obs.state[7] >= OPEN_M:
             row[OFFSET] = self.total / self.count - self.hand(obs)
         return row
 

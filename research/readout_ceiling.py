@@ -118,7 +118,6 @@ def pad_pixels(z, rows: slice, episode: np.ndarray, labels: np.ndarray) -> tuple
     return pads, sight
 
 
-
 def merged(stores: list[dict]) -> dict:
     """One store of several; episode numbers kept apart."""
     first = 0
