@@ -528,6 +528,31 @@ def test_a_missing_head_is_refused_in_one_line_before_any_stage(tmp_path, capsys
     assert not out.exists()
 
 
+@pytest.mark.slow
+def test_round_0_starts_from_init_at_another_resolution_and_a_mismatched_one_is_refused(tmp_path, capsys):
+    """A student fitted at 128 x 96 warms a recipe at 192 x 144: with no learning rate round 0's weights stay
+    the ones it started from, which are init's."""
+    from trainer.student.cli import main as student_main
+    from trainer.student.recipe import main as recipe_main
+
+    init = tmp_path / "init.pt"
+    assert student_main(["init", "--out", str(init), "--perception", "depth", "--width", "8", "--head-dims",
+                         "16", "32", "--state-features", "16", "--exec-horizon", "4", "--prediction",
+                         "v_prediction"]) == 0
+    args = ["--perception", "depth", "--demos", "1", "--rounds", "0", "--fit-steps", "1", "--lr", "0",
+            "--workers", "1", "--curve-episodes", "1", "--eval-episodes", "1", "--width", "8", "--head-dims",
+            "16", "32", "--state-features", "16", "--batch", "2", "--resolution", "192x144",
+            "--init", str(init)]
+    other = [a if args[i - 1] != "--state-features" else "32" for i, a in enumerate(args)]
+    assert recipe_main(["--out", str(tmp_path / "other"), *other]) == 2
+    assert f"--init {init} is a student of other settings" in capsys.readouterr().err
+    assert not (tmp_path / "other").exists()
+    assert recipe_main(["--out", str(tmp_path / "r"), *args]) == 0
+    fitted, source = checkpoint.load(tmp_path / "r" / "fit" / "round0" / "ckpt.pt"), checkpoint.load(init)
+    assert fitted.step == 1 and fitted.model.keys() == source.ema.keys()
+    assert all(torch.equal(fitted.model[k], source.ema[k]) for k in source.ema)
+
+
 def test_a_seen_share_draws_that_share_of_each_batch_from_the_seen_kinds(tmp_path):
     """Steps know their episode's kind; with a seen share the fit draws the seen kinds' steps that often,
     however few of them the stores hold."""

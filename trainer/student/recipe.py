@@ -77,6 +77,10 @@ class RecipeConfig:
     92 % after 12000; docs/student.md "The recipe")."""
     round_steps: int = 4000
     """Optimiser steps of each later round's fit, from the last round's weights, on all data so far."""
+    init: str = ""
+    """A depth student's checkpoint whose weights round 0's fit starts from instead of from scratch: one of
+    the same model settings, at any ``resolution`` (the encoder pools by spatial softmax over image
+    coordinates in [-1, 1] and by a mean, so no weight's shape depends on the image's)."""
     batch: int = 128
     lr: float = 3e-4
     width: int = 16
@@ -223,7 +227,7 @@ class Recipe:
                                 control_rate_hz=self.env.control_rate_hz, trained=True,
                                 data={"recipe": str(self.out), "round": r, "steps": len(data),
                                       "command": command_line()})
-            init = None if r == 0 else self.run_dir(r - 1) / CKPT_NAME
+            init = self.run_dir(r - 1) / CKPT_NAME if r else Path(c.init) if c.init else None
             self._log(f"round {r} fit", distill(data, self.run_dir(r), c.student(), c.distill(steps), info,
                                                 init))
 
@@ -420,6 +424,9 @@ def main(argv: list[str] | None = None) -> int:
         if cfg.head and not Path(cfg.head).is_file():  # found now, not by the first worker that loads it
             raise ValueError(f"--head {cfg.head}: no such checkpoint (M0 is a recipe of its own, "
                              "--perception privileged: docs/student.md)")
+        if cfg.init and checkpoint.load(Path(cfg.init)).config != cfg.student():
+            raise ValueError(f"--init {cfg.init} is a student of other settings than --width, --head-dims, "
+                             "--state-features, --exec-horizon and --prediction ask")
         out = args.out or default_home() / "recipe" / args.name
         summary = Recipe(out, cfg).run()
     except (ValueError, DatasetError, OSError, subprocess.CalledProcessError) as exc:
