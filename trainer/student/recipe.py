@@ -1,7 +1,8 @@
 """``python -m trainer student recipe``: the student that grasps, from nothing, in resumable stages.
 
     demos     the reactive expert's episodes, every frame labelled (round 0: ``trainer.student.dagger``)
-    fit       the student on every labelled step so far (round 0 from scratch, then from the last round's)
+    fit       the student on every labelled step so far (round 0 from scratch or ``--init``,
+              then from the last round's)
     export    the student -> student.onnx (a depth student, composed with ``--head`` when given; the next
               round's learner, the shipped file)
     dagger    the learner's own episodes labelled by the expert (rounds 1..R, beta halved each round)
@@ -73,8 +74,9 @@ class RecipeConfig:
     beta: float = 0.5
     """Share of round 1's steps the expert executes; halved each round."""
     fit_steps: int = 12000
-    """Optimiser steps of round 0's fit, from scratch (the head on true facts: 61 % seen after 3000 steps,
-    92 % after 12000; docs/student.md "The recipe")."""
+    """Optimiser steps of round 0's fit (from scratch, the head on true facts: 61 % seen after 3000 steps,
+    92 % after 12000; docs/student.md "The recipe"; from a 128 x 96 depth student's weights at 192 x 144,
+    1500)."""
     round_steps: int = 4000
     """Optimiser steps of each later round's fit, from the last round's weights, on all data so far."""
     init: str = ""
