@@ -530,8 +530,8 @@ def test_a_missing_head_is_refused_in_one_line_before_any_stage(tmp_path, capsys
 
 @pytest.mark.slow
 def test_round_0_starts_from_init_at_another_resolution_and_a_mismatched_one_is_refused(tmp_path, capsys):
-    """A student fitted at 128 x 96 warms a recipe at 192 x 144: with no learning rate round 0's weights stay
-    the ones it started from, which are init's."""
+    """A checkpoint holds no image size, so a student of the same model settings warms a recipe at 192 x 144:
+    with no learning rate round 0's weights stay the ones it started from, which are init's."""
     from trainer.student.cli import main as student_main
     from trainer.student.recipe import main as recipe_main
 
