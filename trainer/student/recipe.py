@@ -83,6 +83,11 @@ class RecipeConfig:
     """A depth student's checkpoint whose weights round 0's fit starts from instead of from scratch: one of
     the same model settings, at any ``resolution`` (the encoder pools by spatial softmax over image
     coordinates in [-1, 1] and by a mean, so no weight's shape depends on the image's)."""
+    head_features: bool = True
+    """The depth student's head reads the encoder's features beside the facts (``StudentConfig``). False: only
+    the facts, the joint state and the hand's pose, as a composed student's head does, so that only the labels
+    teach the encoder; a composed student (``trainer student recover`` of a shipped file) is then an
+    ``init``."""
     batch: int = 128
     lr: float = 3e-4
     width: int = 16
@@ -139,7 +144,7 @@ class RecipeConfig:
     def student(self) -> StudentConfig:
         return StudentConfig(perception=self.perception, width=self.width, head_dims=self.head_dims,
                              state_features=self.state_features, exec_horizon=self.exec_horizon,
-                             prediction=self.prediction)
+                             prediction=self.prediction, head_features=self.head_features)
 
     def spec(self) -> DepthSpec:
         width, _, height = self.resolution.partition("x")
@@ -428,7 +433,7 @@ def main(argv: list[str] | None = None) -> int:
                              "--perception privileged: docs/student.md)")
         if cfg.init and checkpoint.load(Path(cfg.init)).config != cfg.student():
             raise ValueError(f"--init {cfg.init} is a student of other settings than --width, --head-dims, "
-                             "--state-features, --exec-horizon and --prediction ask")
+                             "--state-features, --exec-horizon, --prediction and --head-features ask")
         out = args.out or default_home() / "recipe" / args.name
         summary = Recipe(out, cfg).run()
     except (ValueError, DatasetError, OSError, subprocess.CalledProcessError) as exc:
