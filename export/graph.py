@@ -78,17 +78,22 @@ def build_model(ckpt: Checkpoint, ckpt_path: Path, ddim_steps: int,
     the torch reference actions ``export.check`` compares against where the checkpoint is not at hand."""
     meta = policy_metadata(ckpt, ddim_steps, ckpt_path, spacing)
     policy = ckpt.policy()
-    module = UnrolledPolicy(policy, ddim_steps, ckpt.info.action_scale, spacing).eval()
+    model = trace(policy, meta)
+    set_metadata(model, meta, reference.record(policy, meta))
+    onnx.checker.check_model(model, full_check=True)
+    return model, meta
+
+
+def trace(policy: nn.Module, meta: PolicyMetadata) -> onnx.ModelProto:
+    """The unrolled graph of ``policy`` for the DDIM plan and action scale ``meta`` names; no metadata."""
+    module = UnrolledPolicy(policy, meta.ddim_steps, meta.action_scale, meta.ddim_spacing).eval()
     buf = io.BytesIO()
     with torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # tracer warnings about Python constants are the point here
         example = tuple(torch.from_numpy(v) for v in example_feeds(meta).values())
         torch.onnx.export(module, example, buf, input_names=list(INPUT_NAMES),
                           output_names=list(OUTPUT_NAMES), opset_version=OPSET, dynamo=False)
-    model = onnx.load_from_string(buf.getvalue())
-    set_metadata(model, meta, reference.record(policy, meta))
-    onnx.checker.check_model(model, full_check=True)
-    return model, meta
+    return onnx.load_from_string(buf.getvalue())
 
 
 def set_metadata(model: onnx.ModelProto, meta: PolicyMetadata, recorded_reference: str) -> None:

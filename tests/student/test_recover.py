@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import onnx
 import pytest
@@ -79,8 +80,8 @@ def test_a_wrongly_placed_weight_is_caught_by_parity_and_nothing_is_written(comp
 
     real = recover._initializer_names
 
-    def swapped(net, meta):
-        names = real(net, meta)
+    def swapped(config, meta):
+        names = real(config, meta)
         first, second = (n for n, k in names.items() if k in ("head.final.1.bias", "action_norm.centre"))
         names[first], names[second] = names[second], names[first]
         return names
@@ -100,6 +101,9 @@ def test_a_file_that_is_not_an_exported_student_is_refused_in_one_line(untrained
     text.write_text("not a graph")
     assert student_main(["recover", str(text), "--out", str(tmp_path / "a")]) == 2
     assert "is not an ONNX file" in capsys.readouterr().err
+    ddg = Path(__file__).parents[2] / "models" / "ddg" / "unet.onnx"  # an ONNX file, but not a policy
+    assert student_main(["recover", str(ddg), "--out", str(tmp_path / "a")]) == 2
+    assert "is not a student policy file" in capsys.readouterr().err
     model = onnx.load(str(untrained_student_onnx))
     meta = read_metadata(model)
     data = {k: v for k, v in meta.training_data.items() if k != "student_config"}

@@ -20,10 +20,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import io
 import json
 import sys
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +29,7 @@ import onnx
 import torch
 from onnx import numpy_helper
 
-from export.graph import INPUT_NAMES, OPSET, OUTPUT_NAMES, UnrolledPolicy, portable, read_metadata
+from export.graph import portable, read_metadata, trace
 from export.reference import REFERENCE_SEED, example_feeds, reference_actions
 from runtime.metadata import MetadataError, PolicyMetadata
 from trainer.student import checkpoint
@@ -51,10 +49,13 @@ class RecoverError(ValueError):
 def recover(path: Path) -> dict[str, Checkpoint]:
     """``{"student": ...}``, and ``"head"`` for a composed student, from the policy file at ``path``."""
     model = _load(path)
-    meta = read_metadata(model)
+    try:
+        meta = read_metadata(model)
+    except MetadataError as exc:
+        raise RecoverError(f"{path} is not a student policy file: {exc}") from None
     config = _config(path, meta)
     net = build_policy(config).eval()
-    names = _initializer_names(net, meta)
+    names = _initializer_names(config, meta)
     values = _initializers(model)
     missing = sorted(set(names) - set(values))
     if missing:
@@ -73,7 +74,7 @@ def recover(path: Path) -> dict[str, Checkpoint]:
 def _load(path: Path) -> onnx.ModelProto:
     try:
         return onnx.load(str(path))
-    except (OSError, onnx.onnx_cpp2py_export.checker.ValidationError) as exc:
+    except OSError as exc:
         raise RecoverError(f"cannot read {path}: {exc}") from None
     except Exception as exc:  # protobuf's DecodeError and kin on a file that is not ONNX
         raise RecoverError(f"{path} is not an ONNX file ({type(exc).__name__})") from None
@@ -93,23 +94,17 @@ def _config(path: Path, meta: PolicyMetadata) -> StudentConfig:
     return config
 
 
-def _initializer_names(net: torch.nn.Module, meta: PolicyMetadata) -> dict[str, str]:
-    """{initializer name: state-dict key} of ``net``'s export, found by giving each tensor distinct values."""
-    probe = build_policy(net.config).eval()
+def _initializer_names(config: StudentConfig, meta: PolicyMetadata) -> dict[str, str]:
+    """{initializer name: state-dict key} of the export of a ``config`` student, found by giving each of its
+    tensors distinct values."""
+    probe = build_policy(config).eval()
     gen = torch.Generator().manual_seed(0)
     with torch.no_grad():
         for tensor in probe.state_dict().values():
             tensor.copy_(torch.rand(tensor.shape, generator=gen) + 2.0)  # no zeros, ones or repeats
-    module = UnrolledPolicy(probe, meta.ddim_steps, meta.action_scale, meta.ddim_spacing).eval()
-    buf = io.BytesIO()
-    with torch.no_grad(), warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # tracer warnings about Python constants, as in export.graph
-        example = tuple(torch.from_numpy(v) for v in example_feeds(meta).values())
-        torch.onnx.export(module, example, buf, input_names=list(INPUT_NAMES),
-                          output_names=list(OUTPUT_NAMES), opset_version=OPSET, dynamo=False)
     by_value = {tensor.numpy().tobytes(): key for key, tensor in probe.state_dict().items()}
     names = {init.name: by_value.get(numpy_helper.to_array(init).tobytes())
-             for init in onnx.load_from_string(buf.getvalue()).graph.initializer}
+             for init in trace(probe, meta).graph.initializer}
     names = {name: key for name, key in names.items() if key is not None}
     unplaced = set(probe.state_dict()) - set(names.values())
     if unplaced:
@@ -176,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         recovered = recover(args.model)
-    except (RecoverError, MetadataError, OSError) as exc:
+    except (RecoverError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     written = {}
