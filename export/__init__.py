@@ -1,1 +1,2 @@
-"""Student checkpoint -> ``student.onnx`` (DDIM unrolled, metadata inside), parity/latency check, int8."""
+"""Student checkpoint -> ``student.onnx`` (DDIM unrolled, metadata inside), parity/latency check, int8; and
+back (``export.recover``)."""

@@ -1,5 +1,5 @@
-"""``python -m trainer student fit|recipe|readout|compose|recover|init|probe ...``; fit also runs under
-``torchrun --nproc_per_node N``."""
+"""``python -m trainer student fit|recipe|readout|compose|init|probe ...``; fit also runs under ``torchrun
+--nproc_per_node N``."""
 
 from __future__ import annotations
 
@@ -36,8 +36,6 @@ MENU = Menu("python -m trainer student", {
                 "trainer.student.readout:main"),
     "compose": ("one depth student from a depth student's perception and a privileged head (M0)",
                 "trainer.student.compose:main"),
-    "recover": ("a shipped student.onnx back into its checkpoint(s), to train on from it",
-                "trainer.student.recover:main"),
     "init": ("write an untrained checkpoint (test fixtures)", "trainer.student.cli:init"),
     "probe": ("offline action error of an exported student against demos", "trainer.student.probe:main"),
 })

@@ -86,7 +86,7 @@ class RecipeConfig:
     head_features: bool = True
     """The depth student's head reads the encoder's features beside the facts (``StudentConfig``). False: only
     the facts, the joint state and the hand's pose, as a composed student's head does, so that only the labels
-    teach the encoder; a composed student (``trainer student recover`` of a shipped file) is then an
+    teach the encoder; a composed student (``python -m export.recover`` of a shipped file) is then an
     ``init``."""
     batch: int = 128
     lr: float = 3e-4

@@ -1,4 +1,4 @@
-"""``python -m trainer student recover``: a shipped ``student.onnx`` back into the student checkpoint(s) it
+"""``python -m export.recover``: a shipped ``student.onnx`` back into the student checkpoint(s) it
 was exported from, so that training can go on from the file alone (a fresh machine has no cache).
 
 The policy file names its network's settings (``training_data.student_config``) and holds every weight as a
@@ -12,7 +12,7 @@ A composed student (``trainer student compose``) also gives back its privileged 
 weights and normalisers are the composed student's, less the perception. Writes ``OUT/student.pt`` and, for a
 composed file, ``OUT/head.pt``:
 
-    python -m trainer student recover models/student.onnx --out DIR
+    python -m export.recover models/student.onnx --out DIR
     python -m trainer student recipe --init DIR/student.pt --no-head-features --head DIR/head.pt ...
 """
 
@@ -163,7 +163,7 @@ def _head(student: Checkpoint, record: dict) -> Checkpoint:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m trainer student recover",
+    p = argparse.ArgumentParser(prog="python -m export.recover",
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("model", type=Path, help="a policy file written by `python -m export` "
                    "(models/student.onnx)")
@@ -180,3 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         checkpoint.save(args.out / f"{name}.pt", ckpt)
     print(json.dumps({"written": written, "config": json.loads(recovered["student"].config.to_json())}))
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

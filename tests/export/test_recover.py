@@ -1,4 +1,4 @@
-"""``trainer student recover``: a policy file back into the checkpoints it was exported from."""
+"""``python -m export.recover``: a policy file back into the checkpoints it was exported from."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import onnx
 import pytest
 import torch
 
+from export.recover import main as recover_main
 from trainer.student import checkpoint
 from trainer.student.cli import main as student_main
 
@@ -45,7 +46,7 @@ def test_a_composed_file_gives_back_its_student_and_its_head_exactly(composed_fi
 
     path, composed, head = composed_file
     assert sum(n.op_type == "Identity" for n in onnx.load(str(path)).graph.node) > 0  # merged ones are found
-    assert student_main(["recover", str(path), "--out", str(tmp_path)]) == 0
+    assert recover_main([str(path), "--out", str(tmp_path)]) == 0
     student, recovered_head = checkpoint.load(tmp_path / "student.pt"), checkpoint.load(tmp_path / "head.pt")
     assert student.config == composed.config and student.ema.keys() == composed.ema.keys()
     assert all(torch.equal(student.ema[k], composed.ema[k]) for k in composed.ema)
@@ -65,18 +66,18 @@ def test_a_plain_depth_student_gives_back_one_checkpoint_and_an_earlier_student_
     assert student_main(["init", "--out", str(source), *TINY, "--perception", "depth"]) == 0
     assert export_main([str(source), "--out", str(tmp_path / "eye.onnx")]) == 0
     capsys.readouterr()
-    assert student_main(["recover", str(tmp_path / "eye.onnx"), "--out", str(tmp_path / "out")]) == 0
+    assert recover_main([str(tmp_path / "eye.onnx"), "--out", str(tmp_path / "out")]) == 0
     assert json.loads(capsys.readouterr().out)["written"] == {"student": str(tmp_path / "out" / "student.pt")}
     made, student = checkpoint.load(source), checkpoint.load(tmp_path / "out" / "student.pt")
     assert student.config == made.config and all(torch.equal(student.ema[k], made.ema[k]) for k in made.ema)
-    assert student_main(["recover", str(untrained_student_onnx), "--out", str(tmp_path / "old")]) == 2
+    assert recover_main([str(untrained_student_onnx), "--out", str(tmp_path / "old")]) == 2
     err = capsys.readouterr().err
     assert "only the recipe's depth students can be recovered" in err and err.count("\n") == 1
 
 
 def test_a_wrongly_placed_weight_is_caught_by_parity_and_nothing_is_written(composed_file, tmp_path,
                                                                            monkeypatch, capsys):
-    from trainer.student import recover
+    from export import recover
 
     real = recover._initializer_names
 
@@ -87,7 +88,7 @@ def test_a_wrongly_placed_weight_is_caught_by_parity_and_nothing_is_written(comp
         return names
 
     monkeypatch.setattr(recover, "_initializer_names", swapped)
-    assert student_main(["recover", str(composed_file[0]), "--out", str(tmp_path / "out")]) == 2
+    assert recover_main([str(composed_file[0]), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "the recovered student's actions differ from the file's" in err and err.count("\n") == 1
     assert not (tmp_path / "out").exists()
@@ -99,17 +100,17 @@ def test_a_file_that_is_not_an_exported_student_is_refused_in_one_line(untrained
 
     text = tmp_path / "notes.onnx"
     text.write_text("not a graph")
-    assert student_main(["recover", str(text), "--out", str(tmp_path / "a")]) == 2
+    assert recover_main([str(text), "--out", str(tmp_path / "a")]) == 2
     assert "is not an ONNX file" in capsys.readouterr().err
     ddg = Path(__file__).parents[2] / "models" / "ddg" / "unet.onnx"  # an ONNX file, but not a policy
-    assert student_main(["recover", str(ddg), "--out", str(tmp_path / "a")]) == 2
+    assert recover_main([str(ddg), "--out", str(tmp_path / "a")]) == 2
     assert "is not a student policy file" in capsys.readouterr().err
     model = onnx.load(str(untrained_student_onnx))
     meta = read_metadata(model)
     data = {k: v for k, v in meta.training_data.items() if k != "student_config"}
     set_metadata(model, type(meta)(**{**meta.__dict__, "training_data": data}), "{}")
     onnx.save(model, str(tmp_path / "bare.onnx"))
-    assert student_main(["recover", str(tmp_path / "bare.onnx"), "--out", str(tmp_path / "b")]) == 2
+    assert recover_main([str(tmp_path / "bare.onnx"), "--out", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err
     assert "names no student_config" in err and err.count("\n") == 1
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
@@ -122,7 +123,7 @@ def test_the_recipe_goes_on_from_a_recovered_file(composed_file, tmp_path):
     from trainer.student.recipe import main as recipe_main
 
     path, composed, _ = composed_file
-    assert student_main(["recover", str(path), "--out", str(tmp_path / "rec")]) == 0
+    assert recover_main([str(path), "--out", str(tmp_path / "rec")]) == 0
     rec = tmp_path / "rec"
     assert recipe_main(["--out", str(tmp_path / "r"), "--perception", "depth", "--demos", "1", "--rounds",
                         "0", "--fit-steps", "1", "--lr", "0", "--workers", "1", "--curve-episodes", "1",
