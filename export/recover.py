@@ -46,8 +46,9 @@ class RecoverError(ValueError):
     """A policy file whose weights cannot be recovered into a checkpoint."""
 
 
-def recover(path: Path) -> dict[str, Checkpoint]:
-    """``{"student": ...}``, and ``"head"`` for a composed student, from the policy file at ``path``."""
+def recover(path: Path) -> tuple[dict[str, Checkpoint], float]:
+    """``{"student": ...}``, and ``"head"`` for a composed student, from the policy file at ``path``; and the
+    largest difference between the file's actions and the recovered student's on the reference inputs."""
     model = _load(path)
     try:
         meta = read_metadata(model)
@@ -63,12 +64,12 @@ def recover(path: Path) -> dict[str, Checkpoint]:
                            f"(no initializer {missing[0]!r}); recover it with the torch that exported it")
     state = {key: _tensor(path, values[name], net.state_dict()[key], key) for name, key in names.items()}
     net.load_state_dict(state)
-    _check_parity(path, net, meta)
+    error = _parity(path, net, meta)
     student = _student(path, meta, config, state)
     composed = student.info.data.get("composed")
     if composed is None:
-        return {"student": student}
-    return {"student": student, "head": _head(student, composed["head"])}
+        return {"student": student}, error
+    return {"student": student, "head": _head(student, composed["head"])}, error
 
 
 def _load(path: Path) -> onnx.ModelProto:
@@ -129,7 +130,7 @@ def _initializers(model: onnx.ModelProto) -> dict[str, np.ndarray]:
     return values
 
 
-def _check_parity(path: Path, net: torch.nn.Module, meta: PolicyMetadata) -> None:
+def _parity(path: Path, net: torch.nn.Module, meta: PolicyMetadata) -> float:
     import onnxruntime as ort
 
     feeds = example_feeds(meta, REFERENCE_SEED)
@@ -139,6 +140,7 @@ def _check_parity(path: Path, net: torch.nn.Module, meta: PolicyMetadata) -> Non
     if not error <= PARITY_TOL:
         raise RecoverError(f"{path}: the recovered student's actions differ from the file's by {error:.2g} "
                            f"(> {PARITY_TOL:g}): not written")
+    return error
 
 
 def _student(path: Path, meta: PolicyMetadata, config: StudentConfig, state: dict) -> Checkpoint:
@@ -170,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True, help="folder for student.pt (and head.pt, if composed)")
     args = p.parse_args(argv)
     try:
-        recovered = recover(args.model)
+        recovered, error = recover(args.model)
     except (RecoverError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -178,7 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     for name, ckpt in recovered.items():
         written[name] = str(args.out / f"{name}.pt")
         checkpoint.save(args.out / f"{name}.pt", ckpt)
-    print(json.dumps({"written": written, "config": json.loads(recovered["student"].config.to_json())}))
+    config = json.loads(recovered["student"].config.to_json())
+    print(json.dumps({"written": written, "max_abs_err": error, "config": config}))
     return 0
 
 
