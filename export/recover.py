@@ -62,7 +62,8 @@ def recover(path: Path) -> tuple[dict[str, Checkpoint], float]:
     if missing:
         raise RecoverError(f"{path}: its graph names its weights otherwise than this version's exporter does "
                            f"(no initializer {missing[0]!r}); recover it with the torch that exported it")
-    state = {key: _tensor(path, values[name], net.state_dict()[key], key) for name, key in names.items()}
+    shapes = net.state_dict()
+    state = {key: _tensor(path, values[name], shapes[key], key) for name, key in names.items()}
     net.load_state_dict(state)
     error = _parity(path, net, meta)
     student = _student(path, meta, config, state)
