@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -110,7 +111,7 @@ def test_a_file_that_is_not_an_exported_student_is_refused_in_one_line(untrained
     model = onnx.load(str(untrained_student_onnx))
     meta = read_metadata(model)
     data = {k: v for k, v in meta.training_data.items() if k != "student_config"}
-    set_metadata(model, type(meta)(**{**meta.__dict__, "training_data": data}), "{}")
+    set_metadata(model, dataclasses.replace(meta, training_data=data), "{}")
     onnx.save(model, str(tmp_path / "bare.onnx"))
     assert recover_main([str(tmp_path / "bare.onnx"), "--out", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err

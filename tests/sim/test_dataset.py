@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -94,7 +95,7 @@ def test_unwritable_and_missing_paths_are_clear_errors(tmp_path) -> None:
 def test_mismatched_episode_is_rejected(tmp_path) -> None:
     store = _create(tmp_path / "d.zarr")
     ep = _episode(4, 0)
-    bad = EpisodeRecord(**{**ep.__dict__, "state": ep.state[:3]})
+    bad = dataclasses.replace(ep, state=ep.state[:3])
     with pytest.raises(DatasetError, match="state has 3 steps"):
         store.append(bad)
     with pytest.raises(IndexError):

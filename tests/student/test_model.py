@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -51,7 +52,7 @@ def test_hand_pose_is_where_the_simulated_arm_puts_its_grasp_site():
 
 
 def test_hand_pose_widens_the_state_input_only_when_asked():
-    plain, posed = StudentPolicy(TINY), StudentPolicy(StudentConfig(**{**TINY.__dict__, "hand_pose": True}))
+    plain, posed = StudentPolicy(TINY), StudentPolicy(dataclasses.replace(TINY, hand_pose=True))
     assert plain.state_mlp[0].in_features == 8 and plain.hand_norm is None
     assert posed.state_mlp[0].in_features == 8 + 9 and "hand_norm.centre" in posed.state_dict()
     state = torch.randn(2, 8)
