@@ -7,8 +7,7 @@ hand pose in the head's scaling and its last layer gives the facts in the head's
 folded into the weights). The result has ``head_features=False`` (the head reads what it was trained on:
 facts, joint state, hand pose) and exports like any depth student.
 
-    python -m trainer student compose --perception DEPTH/ckpt.pt --head PRIVILEGED/ckpt.pt --out C/ckpt.pt \
-        [--yaw-snap 0.5]
+    python -m trainer student compose --perception DEPTH/ckpt.pt --head PRIVILEGED/ckpt.pt --out C/ckpt.pt
 """
 
 from __future__ import annotations
@@ -29,13 +28,13 @@ HEAD_FIELDS = ("action_horizon", "exec_horizon", "state_features", "head_dims", 
 """Settings of the head's network that the composed student takes from the privileged student."""
 
 
-def compose(perception: Checkpoint, head: Checkpoint, yaw_snap: float = 0.0) -> Checkpoint:
+def compose(perception: Checkpoint, head: Checkpoint) -> Checkpoint:
     if perception.config.perception != "depth":
         raise ValueError(f"--perception must be a depth student, got "
                          f"perception={perception.config.perception!r}")
     if head.config.perception != "privileged":
         raise ValueError(f"--head must be a privileged student, got perception={head.config.perception!r}")
-    config = dataclasses.replace(perception.config, head_features=False, yaw_snap=yaw_snap,
+    config = dataclasses.replace(perception.config, head_features=False,
                                  **{name: getattr(head.config, name) for name in HEAD_FIELDS})
     net = PerceptionStudent(config)
     weights = {k: v.clone() for k, v in head.ema.items()}
@@ -78,12 +77,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--perception", type=Path, required=True, help="a depth student's checkpoint")
     p.add_argument("--head", type=Path, required=True, help="a privileged student's checkpoint (M0)")
     p.add_argument("--out", type=Path, required=True, help="the composed checkpoint to write")
-    p.add_argument("--yaw-snap", type=float, default=0.0,
-                   help="read grasp directions shorter than this -> round, longer -> unit length "
-                        "(StudentConfig.yaw_snap; 0 = as read)")
     args = p.parse_args(argv)
     try:
-        ckpt = compose(checkpoint.load(args.perception), checkpoint.load(args.head), args.yaw_snap)
+        ckpt = compose(checkpoint.load(args.perception), checkpoint.load(args.head))
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -87,21 +87,12 @@ class StudentConfig:
     """``perception="depth"``: the action head reads the depth features beside the facts. False: it reads
     only what the privileged head (M0) reads (the facts, the joint state, the hand's pose), so that a head
     trained on the true facts can act on the readout (``trainer student compose``)."""
-    yaw_snap: float = 0.0
-    """``perception="depth"``: the grasp direction the head reads is the readout's moved to the nearer of the
-    two lengths the true facts have: (0, 0) for a kind round in plan view when the read one is shorter than
-    this, else unit length (0 = as read). A head trained on the true facts (M0) never saw a length between;
-    on unseen kinds the readout reads round ones as half-elongated, and the true direction there is worth
-    18 episodes of 180 (``docs/student.md``)."""
 
     def __post_init__(self) -> None:
         if self.prediction not in PREDICTIONS:
             raise StudentConfigError(f"prediction must be one of {PREDICTIONS}, got {self.prediction!r}")
         if self.perception not in PERCEPTIONS:
             raise StudentConfigError(f"perception must be one of {PERCEPTIONS}, got {self.perception!r}")
-        if not 0.0 <= self.yaw_snap < 1.0:
-            raise StudentConfigError(f"yaw_snap must be in [0, 1), a length of (cos 2p, sin 2p), got "
-                                     f"{self.yaw_snap}")
         earlier = [name for name in ("hand_target", "hand_pose", "object_offset", "seen_offset")
                    if getattr(self, name)]
         if self.perception and earlier:

@@ -241,21 +241,10 @@ class PerceptionStudent(nn.Module):
     def fuse(self, features: torch.Tensor, facts: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         if not self.config.head_features:
             features = features[:, :0]
-        if self.config.yaw_snap:
-            facts = self.snap_yaw(facts)
         hand = hand_pose(state)
         turn = into_fingers(self.label_norm.unnormalise(facts)[:, GRASP_YAW], hand)
         x = torch.cat([self.state_norm.normalise(state), self.hand_norm.normalise(hand), facts, turn], dim=-1)
         return torch.cat([features, self.state_mlp(x)], dim=-1)
-
-    def snap_yaw(self, facts: torch.Tensor) -> torch.Tensor:
-        """Standardised facts with the grasp direction moved to length 0 or 1 (``StudentConfig.yaw_snap``)."""
-        real = self.label_norm.unnormalise(facts)
-        yaw = real[:, GRASP_YAW]
-        length = yaw.norm(dim=-1, keepdim=True)
-        yaw = yaw / length.clamp_min(1e-6) * (length >= self.config.yaw_snap).to(yaw.dtype)
-        real = torch.cat([real[:, :GRASP_YAW.start], yaw, real[:, GRASP_YAW.stop:]], dim=-1)
-        return self.label_norm.normalise(real)
 
     def fit_normalisers(self, state: np.ndarray, action: np.ndarray, labels: np.ndarray) -> None:
         """Min-max of states, actions and hand poses; mean and std of the facts (``labels`` [N, >= 8])."""
