@@ -143,6 +143,20 @@ def _shape(i: int, rng: np.random.Generator) -> ObjectKind:
                       round(float(rng.uniform(0.7, 1.0)), 2), rgba)
 
 
+def _square(i: int, rng: np.random.Generator) -> ObjectKind:
+    """Training box ``square<i>``: square in plan view (sides within 4 %, so round to the labels and the
+    expert: any closing direction), flat-topped, 4-5.2 cm across and 4-10.4 cm tall. The seen cube is the only
+    other such kind, and the readout took the round, flat-topped can for an elongated object (docs/student.md):
+    these teach it that a flat top can have no grasp direction without making an upright cylinder seen. Across
+    the diagonal, the widest grasp, it is at most 7.35 cm (the gripper opens 8)."""
+    half = rng.uniform(MIN_HALF, 0.026)
+    size = (half, half * rng.uniform(1.0, 1.04), rng.uniform(MIN_HALF, 2 * half))
+    mass = float(np.clip(SHAPE_DENSITY * 8 * math.prod(size), 0.05, 0.35))
+    rgba = (*np.round(rng.uniform(0.15, 0.95, 3), 2), 1.0)
+    return ObjectKind(f"square{i:02d}", 13, (_rounded(Geom("box", size)),), round(mass, 3),
+                      round(float(rng.uniform(0.7, 1.0)), 2), rgba)
+
+
 def _rounded(geom: Geom) -> Geom:
     return Geom(geom.type, tuple(round(float(v), 4) for v in geom.size),
                 fromto=tuple(round(float(v), 4) for v in geom.fromto))
@@ -153,12 +167,18 @@ SHAPES: tuple[ObjectKind, ...] = tuple(_shape(i, _SHAPE_RNG) for i in range(SHAP
 """Procedural shapes for training only (category 13, as user objects): the seen kinds' primitives at random
 proportions and sizes, which a student needs to read and grasp shapes it was not shown. Evaluation keeps
 the 12 built-in kinds."""
-KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN + SHAPES}
+SQUARE_COUNT, SQUARE_SEED = 8, 1
+_SQUARE_RNG = np.random.default_rng(SQUARE_SEED)
+SQUARES: tuple[ObjectKind, ...] = tuple(_square(i, _SQUARE_RNG) for i in range(SQUARE_COUNT))
+"""Square training boxes (group ``squares``), apart from ``SHAPES`` so that ``train`` stays what the
+lineages before them were trained on."""
+KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN + SHAPES + SQUARES}
 SEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if k.seen)
 UNSEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if not k.seen)
 GROUPS: dict[str, tuple[str, ...]] = {"seen": SEEN, "unseen": UNSEEN, "all": SEEN + UNSEEN,
                                       "shapes": tuple(k.name for k in SHAPES),
-                                      "train": SEEN + tuple(k.name for k in SHAPES)}
+                                      "train": SEEN + tuple(k.name for k in SHAPES),
+                                      "squares": tuple(k.name for k in SQUARES)}
 _MESH_SUFFIXES = (".stl", ".obj")
 MESH_DENSITY = 1000.0
 """kg/m^3 of a bare mesh object: MuJoCo's default geom density (about a fruit's, so a 6 cm cube weighs
@@ -216,8 +236,9 @@ def resolve(name_or_path: str, category_id: int = 13) -> AnyObject:
 
 
 def select_kinds(spec: str) -> tuple[str, ...]:
-    """Kinds named by ``spec`` (a group or a comma list), each checked to exist before any work starts."""
-    kinds = GROUPS[spec] if spec in GROUPS else tuple(s for s in spec.split(",") if s)
+    """Kinds named by ``spec`` (a comma list of groups and kinds), each checked to exist before any work
+    starts."""
+    kinds = tuple(kind for s in spec.split(",") if s for kind in GROUPS.get(s, (s,)))
     if not kinds:
         raise ObjectError(f"no object kinds in {spec!r}")
     for kind in kinds:

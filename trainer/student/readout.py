@@ -100,8 +100,9 @@ def errors(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray) -
 
 def by_kind(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray, kinds: list[str]) -> dict:
     """Near the object, per kind (``kinds``: each episode's): the median offset error, the mean error vector
-    (x, y, z; cm) and, for a kind with a grasp direction, its median error (degrees). A shape the readout
-    never learnt shows as a mean error its episodes share."""
+    (x, y, z; cm) and, for a kind with a grasp direction, its median error (degrees), else the median length
+    of the direction it reads (0 = "round", 1 = as sure as of an elongated kind's). A shape the readout never
+    learnt shows as a mean error its episodes share, or as a round kind read as elongated."""
     error, near = offset_errors(estimate, labels)
     yaw, has_yaw = yaw_errors(estimate, labels), directed(labels)
     kind_of_frame = np.repeat(np.asarray(kinds), np.diff(episode_ends, prepend=0))
@@ -114,6 +115,9 @@ def by_kind(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray, 
                             "mean_error_cm": [_round(v) for v in error[mask].mean(0)]}
             if (mask & has_yaw).any():
                 result[kind]["grasp_yaw_deg_median"] = _round(np.median(yaw[mask & has_yaw]))
+            if (mask & ~has_yaw).any():
+                read = np.linalg.norm(estimate[mask & ~has_yaw, GRASP_YAW], axis=1)
+                result[kind]["grasp_yaw_length_median"] = _round(np.median(read))
     return result
 
 
