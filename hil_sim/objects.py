@@ -145,10 +145,10 @@ def _shape(i: int, rng: np.random.Generator) -> ObjectKind:
 
 def _square(i: int, rng: np.random.Generator) -> ObjectKind:
     """Training box ``square<i>``: square in plan view (sides within 4 %, so round to the labels and the
-    expert: any closing direction), flat-topped, 4-5.2 cm across and 4-10.4 cm tall. The seen cube is the only
-    other such kind, and the readout took the round, flat-topped can for an elongated object (docs/student.md):
-    these teach it that a flat top can have no grasp direction without making an upright cylinder seen. Across
-    the diagonal, the widest grasp, it is at most 7.35 cm (the gripper opens 8)."""
+    expert: any closing direction), flat-topped, 4-5.2 cm across and 4-10.4 cm tall. The seen cube is the
+    only other such kind; the readout reads tall ones as elongated, as it reads the round can
+    (docs/student.md). They teach that a tall flat top can have no grasp direction without making an upright
+    cylinder seen. Across the diagonal, the widest grasp, one is at most 7.35 cm (the gripper opens 8)."""
     half = rng.uniform(MIN_HALF, 0.026)
     size = (half, half * rng.uniform(1.0, 1.04), rng.uniform(MIN_HALF, 2 * half))
     mass = float(np.clip(SHAPE_DENSITY * 8 * math.prod(size), 0.05, 0.35))
@@ -179,6 +179,8 @@ GROUPS: dict[str, tuple[str, ...]] = {"seen": SEEN, "unseen": UNSEEN, "all": SEE
                                       "shapes": tuple(k.name for k in SHAPES),
                                       "train": SEEN + tuple(k.name for k in SHAPES),
                                       "squares": tuple(k.name for k in SQUARES)}
+OBJECTS_HELP = f"kinds, object files and groups ({', '.join(GROUPS)}), comma-separated"
+"""The ``--objects`` help of every command (each resolves it with ``select_kinds``)."""
 _MESH_SUFFIXES = (".stl", ".obj")
 MESH_DENSITY = 1000.0
 """kg/m^3 of a bare mesh object: MuJoCo's default geom density (about a fruit's, so a 6 cm cube weighs

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hil_sim.objects import ObjectError, select_kinds
+from hil_sim.objects import OBJECTS_HELP, ObjectError, select_kinds
 from runtime.preprocess import DepthSpec
 from trainer.dataset import DatasetError, DemoStore, EpisodeRecord, sizes
 from trainer.policies import NEEDS_DEPTH, PolicyError, depth_spec, parse
@@ -32,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scripted | reactive | ppo:CKPT, or another policy spec of trainer.policies")
     p.add_argument("--episodes", type=int, required=True, help="successful episodes wanted in the store")
     p.add_argument("--out", type=Path, required=True, help="zarr store (created, or resumed if it exists)")
-    p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
+    p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--rgb", action="store_true", help="also store RGB (about 7x slower to render)")
     p.add_argument("--no-depth", action="store_true",
                    help="skip depth rendering (throughput baseline; depth is then stored as zeros)")

@@ -1,5 +1,5 @@
-"""The procedural training shapes: the seen kinds' primitives, graspable, at rest as they lie, never an
-evaluation kind."""
+"""The procedural training shapes and square boxes: the seen kinds' primitives, graspable, at rest as they
+lie, never an evaluation kind."""
 
 from __future__ import annotations
 
@@ -9,10 +9,12 @@ import pytest
 from hil_sim import objects
 from hil_sim.world import TABLE_Z, World
 
+TRAINING = objects.GROUPS["shapes"] + objects.GROUPS["squares"]
+
 
 @pytest.fixture(scope="module")
 def shapes_world() -> World:
-    world = World(kinds=objects.GROUPS["shapes"])
+    world = World(kinds=TRAINING)
     yield world
     world.close()
 
@@ -27,7 +29,22 @@ def test_shapes_use_only_the_seen_kinds_primitives_and_stay_out_of_the_evaluatio
     assert objects.select_kinds("train") == objects.GROUPS["train"]
 
 
-@pytest.mark.parametrize("kind", objects.GROUPS["shapes"])
+def test_squares_are_boxes_round_to_the_labels_and_kept_out_of_train() -> None:
+    """Square in plan, so their label has no grasp direction (as the cube's); the expert may close across the
+    diagonal, so that must fit the gripper too."""
+    from trainer.sim.labels import grasp_yaw
+
+    for kind in objects.SQUARES:
+        (geom,) = kind.geoms
+        assert geom.type == "box"
+        assert not grasp_yaw(np.array([1.0, 0, 0, 0]), np.array(geom.size)).any(), kind.name
+        assert 2 * np.hypot(*geom.size[:2]) < objects.MAX_WIDTH_M, kind.name
+    names = objects.GROUPS["squares"]
+    assert not set(names) & set(objects.GROUPS["train"] + objects.GROUPS["all"])
+    assert objects.select_kinds("seen,squares,can") == objects.SEEN + names + ("can",)
+
+
+@pytest.mark.parametrize("kind", TRAINING)
 def test_every_shape_rests_as_it_lies_and_fits_the_gripper(shapes_world: World, kind: str) -> None:
     shapes_world.reset(kind, seed=5)
     start, _ = shapes_world.object_pose()

@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from hil_sim.objects import select_kinds  # noqa: E402
+from hil_sim.objects import OBJECTS_HELP, select_kinds  # noqa: E402
 from runtime.preprocess import DepthSpec  # noqa: E402
 from trainer.sim.env import EnvConfig, GraspEnv  # noqa: E402
 from trainer.sim.rollout import expert_scenes, observe  # noqa: E402
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sensors", nargs="+", default=list(DEFAULT_SENSORS),
                    help="sensor specs, space-separated (a DDG spec may hold commas: "
                    "ddg:model=DIR,steps=5); the first must be clean, the reference (default: %(default)s)")
-    p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds")
+    p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--episodes", type=int, default=6)
     p.add_argument("--steps", type=int, nargs="+", default=[0, 60], help="env steps at which to capture")
     p.add_argument("--seed", type=int, default=10_000)

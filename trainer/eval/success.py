@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hil_sim.objects import ObjectError, select_kinds
+from hil_sim.objects import OBJECTS_HELP, ObjectError, select_kinds
 from runtime.preprocess import RESTORE_METHODS
 from trainer.eval.stats import median_interval, wilson_interval
 from trainer.policies import NEEDS_DEPTH, PolicyError, depth_spec, parse
@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m trainer evaluate", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--policy", default="scripted", help="scripted | reactive | ppo:CKPT | student:ONNX")
-    p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
+    p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--sensor", default="clean",
                    help="depth sensor model seen by the policy: clean | stereo[:PARAMS] | randnoise | "
                         "inpaint | ddg[:model=DIR,steps=K] | ddg_nograft[:...] "

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from hil_sim.objects import select_kinds
+from hil_sim.objects import OBJECTS_HELP, select_kinds
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import expert_scenes
 from trainer.sim.sensors import SceneSensor, SensorError, make_sensor
@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m trainer.sim.capture", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sensor", default="stereo", help="scene sensor spec (default %(default)s)")
-    p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds")
+    p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--episodes", type=int, default=80, help="trajectories (default %(default)s)")
     p.add_argument("--steps", type=int, nargs="+", default=list(DEFAULT_STEPS), help="env steps to capture")
     p.add_argument("--seed", type=int, default=70_000, help="first episode seed (default %(default)s)")

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hil_sim.objects import select_kinds
+from hil_sim.objects import OBJECTS_HELP, select_kinds
 from trainer.dataset import DemoStore
 from trainer.sim.env import EnvConfig
 from trainer.sim.labels import GRASP_YAW, OFFSET, READOUT
@@ -155,8 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--learner", default="",
                    help="who drives them: a policy spec (student:ONNX), else the expert")
     p.add_argument("--seed", type=int, default=30_000, help="first episode seed (apart from the recipe's)")
-    p.add_argument("--objects", default="seen",
-                   help="kinds of the episodes collected: a group (seen, unseen, train...) or a comma list")
+    p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--workers", type=int, default=1)
     args = p.parse_args(argv)
     try:

@@ -104,9 +104,9 @@ class RecipeConfig:
     so the learner, the curve and the shipped file act with M0's head on the readout; the fits teach
     perception."""
     objects: str = "seen"
-    """The kinds the training episodes (demos, rounds, hover) draw from: a group (``seen``; ``train``, the
-    seen kinds and 24 procedural shapes, ``hil_sim.objects.SHAPES``) or a comma list. The curve and the
-    evaluation keep the seen and unseen kinds. M0 on ``train`` (1000 demos) against M0 on ``seen``: unseen
+    """The kinds the training episodes (demos, rounds, hover) draw from: a comma list of groups and kinds
+    (``seen``; ``train``, the seen kinds and 24 procedural shapes, ``hil_sim.objects.SHAPES``). The curve and
+    the evaluation keep the seen and unseen kinds. M0 on ``train`` (1000 demos) against M0 on ``seen``: unseen
     82.2 against 67.8 % (37 episodes won, 11 lost; the can 0 -> 53 %), seen 91.7 against 90.6 %."""
     round_objects: str = ""
     """The kinds the DAgger rounds' learner episodes draw from ("" = ``objects``): rounds still to come may

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hil_sim.objects import ObjectError, select_kinds
+from hil_sim.objects import OBJECTS_HELP, ObjectError, select_kinds
 from trainer.argspec import add_dataclass_args, from_args
 from trainer.menu import Menu
 from trainer.teacher.normaliser import NormaliserError
@@ -33,7 +33,7 @@ PROG = "python -m trainer teacher"
 def fit(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=f"{PROG} fit")
     p.add_argument("--out", type=Path, required=True, help="checkpoint folder (created or resumed)")
-    p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds or paths")
+    p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--resume", action="store_true", help="continue the checkpoint in --out")
     add_dataclass_args(p, TeacherConfig, skip=("objects",))  # --objects: a group name or a list
     args = p.parse_args(argv)
@@ -92,7 +92,7 @@ def plot(argv: list[str]) -> int:
 def smoothness(argv: list[str]) -> int:
     p = argparse.ArgumentParser(prog=f"{PROG} smoothness")
     p.add_argument("--policy", action="append", required=True, help="scripted | ppo:CKPT (repeatable)")
-    p.add_argument("--objects", default="seen", help="seen | unseen | all | comma-separated kinds")
+    p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--episodes", type=int, default=40)
     p.add_argument("--seed", type=int, default=10_000)
     p.add_argument("--workers", type=int, default=2)

@@ -39,7 +39,7 @@ class TeacherError(ValueError):
 @dataclass(frozen=True)
 class TeacherConfig:
     objects: tuple[str, ...] = SEEN
-    """Object kinds to train on (the CLI resolves seen | unseen | all | a comma list)."""
+    """Object kinds to train on (the CLI resolves a comma list of groups and kinds)."""
     steps: int = 200_000
     """PPO env steps of this run, after the warm start's (added to a resumed run's steps)."""
     budget_minutes: float = 30.0
