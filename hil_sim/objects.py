@@ -145,12 +145,13 @@ def _shape(i: int, rng: np.random.Generator) -> ObjectKind:
 
 def _square(i: int, rng: np.random.Generator) -> ObjectKind:
     """Training box ``square<i>``: square in plan view (sides within 4 %, so round to the labels and the
-    expert: any closing direction), flat-topped, 4-5.2 cm across and 4-10.4 cm tall. The seen cube is the
-    only other such kind; the readout reads tall ones as elongated, as it reads the round can
-    (docs/student.md). They teach that a tall flat top can have no grasp direction without making an upright
-    cylinder seen. Across the diagonal, the widest grasp, one is at most 7.35 cm (the gripper opens 8)."""
-    half = rng.uniform(MIN_HALF, 0.026)
-    size = (half, half * rng.uniform(1.0, 1.04), rng.uniform(MIN_HALF, 2 * half))
+    expert: any closing direction), flat-topped, 4.4-5.2 cm across and 10-13 cm tall, as tall as the can (12)
+    and taller than any shape. The readout reads a round object that tall as elongated, be it the can or a
+    cylinder of its size, and one 9 cm tall as round (docs/student.md); no training kind was over 10.4 cm tall,
+    and the tall ones were all elongated. Across the diagonal, the widest grasp, one is at most 7.35 cm (the
+    gripper opens 8)."""
+    half = rng.uniform(0.022, 0.026)
+    size = (half, half * rng.uniform(1.0, 1.04), rng.uniform(0.05, 0.065))
     mass = float(np.clip(SHAPE_DENSITY * 8 * math.prod(size), 0.05, 0.35))
     rgba = (*np.round(rng.uniform(0.15, 0.95, 3), 2), 1.0)
     return ObjectKind(f"square{i:02d}", 13, (_rounded(Geom("box", size)),), round(mass, 3),
