@@ -145,11 +145,11 @@ def _shape(i: int, rng: np.random.Generator) -> ObjectKind:
 
 def _square(i: int, rng: np.random.Generator) -> ObjectKind:
     """Training box ``square<i>``: square in plan view (sides within 4 %, so round to the labels and the
-    expert: any closing direction), flat-topped, 4.4-5.2 cm across and 10-13 cm tall, as tall as the can (12)
-    and taller than any shape. The readout reads a round object that tall as elongated, be it the can or a
-    cylinder of its size, and one 9 cm tall as round (docs/student.md); no training kind was over 10.4 cm tall,
-    and the tall ones were all elongated. Across the diagonal, the widest grasp, one is at most 7.35 cm (the
-    gripper opens 8)."""
+    expert: any closing direction), flat-topped, 4.4-5.2 cm across and 10-13 cm tall, as the can (12) and
+    taller than any shape. No training kind was over 10.4 cm tall, the tall ones all elongated, and the
+    readout read a round object 12 cm tall (the can, a cylinder of its size) as elongated even after square
+    boxes up to 8.7 cm tall had taught it round ones up to 9.5 cm (docs/history.md, 2026-11-30). Across the
+    diagonal, the widest grasp, one is at most 7.35 cm (the gripper opens 8)."""
     half = rng.uniform(0.022, 0.026)
     size = (half, half * rng.uniform(1.0, 1.04), rng.uniform(0.05, 0.065))
     mass = float(np.clip(SHAPE_DENSITY * 8 * math.prod(size), 0.05, 0.35))

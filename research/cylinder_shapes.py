@@ -1,10 +1,11 @@
-"""Upright cylinders as user-object MJCF files: training shapes of the can's and wheel's type, which the product's
-``hil_sim.objects.SHAPES`` leave out so that those kinds stay of an unseen type.
+"""Upright cylinders as user-object MJCF files, of the can's and wheel's type, which the product's training
+shapes leave out so that those kinds stay of an unseen type.
 
-What it measures: whether the readout's misreading of round, flat-topped kinds (the can read as elongated,
-``docs/student.md``) goes once the type is seen, i.e. what keeping cylinders out of training costs. Square boxes,
-a seen type, taught the readout squares but not the can (``history.md``, 2026-11-30). The files are ordinary
-``--objects PATH,...`` user objects (category 13, like the shapes):
+What they measure: which round, flat-topped objects the readout misreads (it read the can as elongated), by
+size, without training on them. Read on expert episodes (``trainer student readout CKPT --store S --objects
+PATH,...``), cylinders as tall as the training kinds read round once square boxes that tall were trained on,
+and a cylinder as tall as the can (12 cm) as elongated until square boxes that tall were (``docs/history.md``,
+2026-11-30). The files are ordinary ``--objects PATH,...`` user objects (category 13, like the shapes):
 
     python research/cylinder_shapes.py --out ~/.cache/diffudepgrasp/cylinders      # prints the comma list
 """

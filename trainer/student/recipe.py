@@ -111,7 +111,9 @@ class RecipeConfig:
     round_objects: str = ""
     """The kinds the DAgger rounds' learner episodes draw from ("" = ``objects``): rounds still to come may
     change it. The demos give the seen kinds ~20 % of ``train``'s scenes, and the readout memorises the
-    scenes it trained on (``docs/history.md``, 2026-11-29): ``seen`` rounds give those kinds more scenes."""
+    scenes it trained on (``docs/history.md``, 2026-11-29): ``seen`` rounds give those kinds more scenes;
+    ``seen,squares`` adds round-in-plan boxes as tall as the can, which the readout otherwise reads as
+    elongated (2026-11-30)."""
     hover_episodes: int = 0
     """Episodes driven by ``head`` on the true facts offset by ``hover_cm`` in a random horizontal direction
     (fixed per episode), every state labelled by the expert (``data/hover.zarr``, in every fit). They hold
