@@ -227,7 +227,8 @@ def resolve(name_or_path: str, category_id: int = 13) -> AnyObject:
     looks_like_path = any(c in name_or_path for c in "/\\.")
     if not looks_like_path:
         raise UnknownObjectError(f"unknown object kind {name_or_path!r}; built-in kinds: "
-                                 f"{', '.join(GROUPS['all'])} and shape00..shape{SHAPE_COUNT - 1:02d} "
+                                 f"{', '.join(GROUPS['all'])}, shape00..shape{SHAPE_COUNT - 1:02d} and "
+                                 f"square00..square{SQUARE_COUNT - 1:02d} "
                                  f"(or give a path to an .stl/.obj mesh or an MJCF .xml)")
     path = Path(name_or_path).expanduser().resolve()
     if not path.is_file():
