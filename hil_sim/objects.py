@@ -137,10 +137,7 @@ def _shape(i: int, rng: np.random.Generator) -> ObjectKind:
         half = rng.uniform(0.0, 0.05)  # the straight part's half length along x
         geom = Geom("capsule", (narrow,), fromto=(-half, 0.0, 0.0, half, 0.0, 0.0))
         volume = math.pi * narrow ** 2 * (2 * half + 4 / 3 * narrow)
-    mass = float(np.clip(SHAPE_DENSITY * volume, 0.05, 0.35))
-    rgba = (*np.round(rng.uniform(0.15, 0.95, 3), 2), 1.0)
-    return ObjectKind(f"shape{i:02d}", 13, (_rounded(geom),), round(mass, 3),
-                      round(float(rng.uniform(0.7, 1.0)), 2), rgba)
+    return _training_kind(f"shape{i:02d}", geom, volume, rng)
 
 
 def _square(i: int, rng: np.random.Generator) -> ObjectKind:
@@ -152,10 +149,16 @@ def _square(i: int, rng: np.random.Generator) -> ObjectKind:
     diagonal, the widest grasp, one is at most 7.35 cm (the gripper opens 8)."""
     half = rng.uniform(0.022, 0.026)
     size = (half, half * rng.uniform(1.0, 1.04), rng.uniform(0.05, 0.065))
-    mass = float(np.clip(SHAPE_DENSITY * 8 * math.prod(size), 0.05, 0.35))
+    return _training_kind(f"square{i:02d}", Geom("box", size), 8 * math.prod(size), rng)
+
+
+def _training_kind(name: str, geom: Geom, volume: float, rng: np.random.Generator) -> ObjectKind:
+    """A one-geom training kind (category 13, as user objects) weighed at ``SHAPE_DENSITY``, of random colour
+    and friction."""
+    mass = float(np.clip(SHAPE_DENSITY * volume, 0.05, 0.35))
     rgba = (*np.round(rng.uniform(0.15, 0.95, 3), 2), 1.0)
-    return ObjectKind(f"square{i:02d}", 13, (_rounded(Geom("box", size)),), round(mass, 3),
-                      round(float(rng.uniform(0.7, 1.0)), 2), rgba)
+    friction = round(float(rng.uniform(0.7, 1.0)), 2)  # drawn after the colour, as the kinds were first drawn
+    return ObjectKind(name, 13, (_rounded(geom),), round(mass, 3), friction, rgba)
 
 
 def _rounded(geom: Geom) -> Geom:
