@@ -118,6 +118,32 @@ def test_training_stacks_are_the_runtimes(tmp_path):
             np.testing.assert_array_equal(batch.chunk[0].numpy(), ep["chunk"][t])
 
 
+def test_steps_of_several_stores_hold_their_frames_once_and_in_order(tmp_path, monkeypatch):
+    """A recipe fit reads every round's store; its frames are joined without a second full copy at the peak
+    (a 192 x 144 round-5 fit was killed on 24 GiB for it), and each store's frames land where its steps do.
+    Small zarr chunks keep the one chunk read at a time small beside the frames, as it is in a real fit."""
+    import tracemalloc
+
+    import trainer.dataset
+    from trainer.student.steps import LabelledSteps
+
+    monkeypatch.setattr(trainer.dataset, "_CHUNK_STEPS", 8)
+    config = EnvConfig(objects=("cube",), max_steps=20)
+    paths = [tmp_path / f"round{r}.zarr" for r in range(4)]
+    for r, path in enumerate(paths):
+        collect_round(path, config, RoundSpec(horizon=4), episodes=3, seed=20 + r)
+    stores = [DemoStore.open(p) for p in paths]
+    tracemalloc.start()
+    try:
+        steps = LabelledSteps(paths, obs_horizon=3, action_horizon=4, depth=True)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    joined = np.concatenate([s.root["data/depth"][:s.n_steps] for s in stores])
+    np.testing.assert_array_equal(steps.frames.numpy().view(np.uint16), joined)
+    assert peak < 1.6 * joined.nbytes, f"peak {peak} bytes for {joined.nbytes} bytes of frames"
+
+
 def test_training_frames_are_held_in_a_dtype_a_gpu_can_index_and_read_back_exactly(tmp_path):
     """CUDA cannot index a uint16 tensor (torch 2.11: "index_cuda" not implemented for 'UInt16'), so the
     frames are held as int16 bits; a sensor value above 32767 must still read back as itself."""

@@ -39,7 +39,7 @@ class LabelledSteps:
     def __init__(self, paths: list[Path], obs_horizon: int, action_horizon: int, *, depth: bool,
                  device: torch.device | str = "cpu") -> None:
         self.device = torch.device(device)
-        parts = [self._read(DemoStore.open(p), p, action_horizon, depth) for p in paths]
+        parts = [self._read(DemoStore.open(p), p, action_horizon) for p in paths]
         self.spec: DepthSpec = parts[0]["spec"]
         for p, part in zip(paths, parts, strict=True):
             if part["spec"] != self.spec:
@@ -57,8 +57,8 @@ class LabelledSteps:
         scales = {part["depth_scale"] for part in parts}
         if len(scales) > 1:
             raise StepsError(f"{paths} mix depth scales {sorted(scales)}")
-        self.frames = (torch.from_numpy(np.concatenate([part["frames"] for part in parts]).view(np.int16))
-                       .to(self.device) if depth else None)
+        self.frames = (torch.from_numpy(_frames(paths, len(self)).view(np.int16)).to(self.device)
+                       if depth else None)
         self.normalised = torch.from_numpy(normalise(np.arange(2 ** 16, dtype=np.uint16), scales.pop(),
                                                      self.spec)).to(self.device)
         """float32 [65536]: ``normalise`` of each uint16 sensor value."""
@@ -66,7 +66,7 @@ class LabelledSteps:
                                                for a in (self.state_np, self.labels_np, self.chunk_np))
 
     @staticmethod
-    def _read(store: DemoStore, path: Path, action_horizon: int, depth: bool) -> dict:
+    def _read(store: DemoStore, path: Path, action_horizon: int) -> dict:
         root, n = store.root, store.n_steps
         if "data/labels" not in root:
             raise StepsError(f"{path} records no perception labels: make it with `trainer student recipe`")
@@ -80,8 +80,6 @@ class LabelledSteps:
                 "chunk": np.asarray(root["data/chunk"][:n, :action_horizon], np.float32),
                 "start": np.repeat(ends - lengths, lengths), "kinds": np.repeat(store.kinds, lengths),
                 "depth_scale": float(store.attrs["depth_scale"])}
-        if depth:
-            part["frames"] = np.asarray(root["data/depth"][:n], np.uint16)
         return part
 
     def __len__(self) -> int:
@@ -94,3 +92,19 @@ class LabelledSteps:
             sensor = self.frames[self.stack_index[index]].int() & 0xFFFF  # int16 bits -> uint16 values
             depth = self.normalised[sensor]
         return StepBatch(depth, self.state[index], self.labels[index], self.chunk[index])
+
+
+def _frames(paths: list[Path], total: int) -> np.ndarray:
+    """Every store's depth frames in one uint16 array [total, H, W], filled a zarr chunk at a time, so a fit
+    holds its frames once: per-store copies joined by ``np.concatenate`` held them twice at the peak, and a
+    192 x 144 recipe's round-5 fit (250k frames, 14 GB) was killed for it on a 24 GiB machine."""
+    stores = [DemoStore.open(p) for p in paths]
+    out = np.empty((total, *stores[0].root["data/depth"].shape[1:]), np.uint16)
+    at = 0
+    for store in stores:
+        depth, n = store.root["data/depth"], store.n_steps
+        for i in range(0, n, depth.chunks[0]):
+            j = min(i + depth.chunks[0], n)
+            out[at + i:at + j] = depth[i:j]
+        at += n
+    return out
