@@ -39,7 +39,8 @@ class LabelledSteps:
     def __init__(self, paths: list[Path], obs_horizon: int, action_horizon: int, *, depth: bool,
                  device: torch.device | str = "cpu") -> None:
         self.device = torch.device(device)
-        parts = [self._read(DemoStore.open(p), p, action_horizon) for p in paths]
+        stores = [DemoStore.open(p) for p in paths]
+        parts = [self._read(store, p, action_horizon) for store, p in zip(stores, paths, strict=True)]
         self.spec: DepthSpec = parts[0]["spec"]
         for p, part in zip(paths, parts, strict=True):
             if part["spec"] != self.spec:
@@ -57,8 +58,7 @@ class LabelledSteps:
         scales = {part["depth_scale"] for part in parts}
         if len(scales) > 1:
             raise StepsError(f"{paths} mix depth scales {sorted(scales)}")
-        self.frames = (torch.from_numpy(_frames(paths, len(self)).view(np.int16)).to(self.device)
-                       if depth else None)
+        self.frames = (torch.from_numpy(_frames(stores).view(np.int16)).to(self.device) if depth else None)
         self.normalised = torch.from_numpy(normalise(np.arange(2 ** 16, dtype=np.uint16), scales.pop(),
                                                      self.spec)).to(self.device)
         """float32 [65536]: ``normalise`` of each uint16 sensor value."""
@@ -75,12 +75,11 @@ class LabelledSteps:
                              f"predicts {action_horizon}")
         ends = store.episode_ends
         lengths = np.diff(ends, prepend=0)
-        part = {"spec": store.depth_spec, "state": np.asarray(root["data/state"][:n], np.float32),
+        return {"spec": store.depth_spec, "state": np.asarray(root["data/state"][:n], np.float32),
                 "labels": np.asarray(root["data/labels"][:n], np.float32),
                 "chunk": np.asarray(root["data/chunk"][:n, :action_horizon], np.float32),
                 "start": np.repeat(ends - lengths, lengths), "kinds": np.repeat(store.kinds, lengths),
                 "depth_scale": float(store.attrs["depth_scale"])}
-        return part
 
     def __len__(self) -> int:
         return len(self.state_np)
@@ -94,12 +93,12 @@ class LabelledSteps:
         return StepBatch(depth, self.state[index], self.labels[index], self.chunk[index])
 
 
-def _frames(paths: list[Path], total: int) -> np.ndarray:
-    """Every store's depth frames in one uint16 array [total, H, W], filled a zarr chunk at a time, so a fit
+def _frames(stores: list[DemoStore]) -> np.ndarray:
+    """Every store's depth frames in one uint16 array [steps, H, W], filled a zarr chunk at a time, so a fit
     holds its frames once: per-store copies joined by ``np.concatenate`` held them twice at the peak, and a
     192 x 144 recipe's round-5 fit (250k frames, 14 GB) was killed for it on a 24 GiB machine."""
-    stores = [DemoStore.open(p) for p in paths]
-    out = np.empty((total, *stores[0].root["data/depth"].shape[1:]), np.uint16)
+    steps = sum(store.n_steps for store in stores)
+    out = np.empty((steps, *stores[0].root["data/depth"].shape[1:]), np.uint16)
     at = 0
     for store in stores:
         depth, n = store.root["data/depth"], store.n_steps
