@@ -126,7 +126,7 @@ def test_steps_of_several_stores_keep_their_frames_off_the_heap_and_in_order(tmp
     import tracemalloc
 
     import trainer.dataset
-    from trainer.student.steps import LabelledSteps
+    from trainer.student.steps import LabelledSteps, _frames
 
     monkeypatch.setattr(trainer.dataset, "_CHUNK_STEPS", 8)
     config = EnvConfig(objects=("cube",), max_steps=20)
@@ -144,6 +144,7 @@ def test_steps_of_several_stores_keep_their_frames_off_the_heap_and_in_order(tmp
     np.testing.assert_array_equal(steps.frames.numpy().view(np.uint16), joined)
     assert peak < 0.5 * joined.nbytes, f"peak {peak} bytes on the heap for {joined.nbytes} bytes of frames"
     assert not list(tmp_path.glob("frames-*")), "the frames' file is left behind"
+    np.testing.assert_array_equal(_frames(stores, None), joined)  # in memory, as for a GPU fit
 
 
 def test_training_frames_are_held_in_a_dtype_a_gpu_can_index_and_read_back_exactly(tmp_path):

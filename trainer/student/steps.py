@@ -2,9 +2,9 @@
 training device, so a batch is a few index gathers rather than a Python loop per sample.
 
 Depth is held as the sensor's 16 bits (half the memory of float32 frames; as int16, since CUDA cannot index a
-uint16 tensor), on the CPU in an unlinked file beside the stores, mapped into memory: the page cache holds
-what fits and the kernel can drop it, where a fit's own copy of 300k frames at 192 x 144 (17 GB) leaves a
-24 GiB machine no room. Frames are normalised per batch through a table of
+uint16 tensor); a CPU fit keeps them in an unlinked file beside the stores, mapped into memory: the page cache
+holds what fits and the kernel can drop it, where a fit's own copy of 300k frames at 192 x 144 (17 GB) leaves
+a 24 GiB machine no room. Frames are normalised per batch through a table of
 ``runtime.preprocess.normalise`` over every uint16 value, the one implementation the runtime runs; stacks
 follow the ``FrameStack`` rule (the episode's first frame fills the history): a sample's stack is what the
 runtime feeds the policy at that step (tests/student/test_recipe.py).
@@ -61,7 +61,8 @@ class LabelledSteps:
         scales = {part["depth_scale"] for part in parts}
         if len(scales) > 1:
             raise StepsError(f"{paths} mix depth scales {sorted(scales)}")
-        self.frames = (torch.from_numpy(_frames(stores, paths[0].parent).view(np.int16)).to(self.device)
+        spill = paths[0].parent if self.device.type == "cpu" else None  # a GPU copy frees the host's at once
+        self.frames = (torch.from_numpy(_frames(stores, spill).view(np.int16)).to(self.device)
                        if depth else None)
         self.normalised = torch.from_numpy(normalise(np.arange(2 ** 16, dtype=np.uint16), scales.pop(),
                                                      self.spec)).to(self.device)
@@ -97,15 +98,19 @@ class LabelledSteps:
         return StepBatch(depth, self.state[index], self.labels[index], self.chunk[index])
 
 
-def _frames(stores: list[DemoStore], folder: Path) -> np.ndarray:
-    """Every store's depth frames in one uint16 array [steps, H, W], filled a zarr chunk at a time into a
-    file in ``folder`` that is unlinked at once (the space comes back when the array goes, even if the process
-    is killed). Nothing is held twice: per-store copies joined by ``np.concatenate`` were, and a 192 x 144
-    recipe's round-5 fit (250k frames, 14 GB) was killed for it on a 24 GiB machine."""
+def _frames(stores: list[DemoStore], folder: Path | None) -> np.ndarray:
+    """Every store's depth frames in one uint16 array [steps, H, W], filled a zarr chunk at a time; with a
+    ``folder``, into a file there that is unlinked at once (the space comes back when the array goes, even if
+    the process is killed), else in memory. Nothing is held twice: per-store copies joined by
+    ``np.concatenate`` were, and a 192 x 144 recipe's round-5 fit (250k frames, 14 GB) was killed for it on a
+    24 GiB machine."""
     steps = sum(store.n_steps for store in stores)
     shape = (steps, *stores[0].root["data/depth"].shape[1:])
-    with tempfile.TemporaryFile(dir=folder, prefix="frames-") as file:
-        out = np.memmap(file, np.uint16, "w+", shape=shape)  # the mapping keeps the unlinked file alive
+    if folder is None:
+        out = np.empty(shape, np.uint16)
+    else:
+        with tempfile.TemporaryFile(dir=folder, prefix="frames-") as file:
+            out = np.memmap(file, np.uint16, "w+", shape=shape)  # the mapping keeps the unlinked file alive
     at = 0
     for store in stores:
         depth, n = store.root["data/depth"], store.n_steps
