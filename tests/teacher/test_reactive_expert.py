@@ -4,13 +4,11 @@ twin would never reach, such as a learner's, with valid actions."""
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
-from hil_sim.kinematics import ArmKinematics
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, run_episode
 from trainer.teacher.ppo import TeacherConfig
-from trainer.teacher.scripted import SIGHT_YAW, ExpertConfig, Phase, ReactiveExpert, fingers_yaw
+from trainer.teacher.scripted import Phase, ReactiveExpert
 from trainer.teacher.warmstart import labelled_episode
 
 
@@ -56,34 +54,3 @@ def test_grasps_thin_kinds_low_in_the_fingers():
     finally:
         env.close()
     assert all(results)
-
-
-def _closing_yaw(config: ExpertConfig, seed: int) -> float:
-    """The fingers' closing yaw when the expert first closes on a can (round in plan)."""
-    env = GraspEnv(EnvConfig(objects=("can",), randomise=True, render_depth=False))
-    expert, kinematics = ReactiveExpert(config), ArmKinematics()
-    try:
-        obs, info = env.reset(seed=seed)
-        expert.reset(info)
-        for _ in range(80):
-            action = expert.act(obs)
-            if action[7] > 0:
-                return fingers_yaw(kinematics.site(obs[:9])[1])
-            obs, *_ = env.step(action)
-    finally:
-        env.close()
-    raise AssertionError("the expert never closed")
-
-
-def test_closes_round_kinds_along_the_line_of_sight():
-    """A depth reader's aim error lies along the camera's line of sight; the fingers forgive it along their
-    closing axis. As the wrist stands (``wrist``), the closing yaw is another."""
-    turn = (_closing_yaw(ExpertConfig(), 10001) - SIGHT_YAW) % np.pi
-    assert min(turn, np.pi - turn) < 0.06
-    turn = (_closing_yaw(ExpertConfig(round_closing="wrist"), 10001) - SIGHT_YAW) % np.pi
-    assert min(turn, np.pi - turn) > 0.2
-
-
-def test_rejects_an_unknown_closing_rule():
-    with pytest.raises(ValueError, match="round_closing"):
-        ExpertConfig(round_closing="left")

@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 
 from hil_sim.kinematics import ArmKinematics, rotation_error
-from hil_sim.world import CAMERA_POS, CAMERA_TARGET, TABLE_Z
+from hil_sim.world import TABLE_Z
 from trainer.sim.env import FINGER_VELOCITIES, FINGERS, GRIPPER_COMMAND, OBJECT_POSITION, OBJECT_QUAT
 
 _Goal = tuple[np.ndarray, np.ndarray, float]
@@ -27,8 +27,6 @@ _ANGLE_TOL = 0.05
 """Hand angle from the goal orientation that counts as arrived (rad)."""
 _SHUT_M = 0.004
 """Finger opening (both slides) below which a closed gripper holds nothing."""
-SIGHT_YAW = float(np.arctan2(CAMERA_TARGET[1] - CAMERA_POS[1], CAMERA_TARGET[0] - CAMERA_POS[0]))
-"""Yaw of the nominal camera's line of sight on the table plane."""
 
 
 @dataclass(frozen=True)
@@ -59,19 +57,10 @@ class ExpertConfig:
     """ReactiveExpert: the same for the hand's angle from the grasp orientation (the two add up)."""
     finger_still_mps: float = 0.003
     """ReactiveExpert: finger speed under which a closed gripper has finished closing."""
-    round_closing: str = "sight"
-    """Closing direction on kinds round in plan: "sight", along the camera's line of sight (``SIGHT_YAW``),
-    or "wrist", as the wrist stands. A depth student's aim error lies mostly along the line of sight, and the
-    fingers forgive an aim error along their closing axis far better than across it (the expert aiming 1 cm
-    off along the sight lifts 16 of 20 cans closing along it, 2 of 20 closing across; docs/student.md)."""
     ik_iters: int = 15
     ik_damping: float = 0.05
     null_gain: float = 0.05
     """Pull towards the home pose in the Jacobian's null space (keeps the elbow tidy)."""
-
-    def __post_init__(self) -> None:
-        if self.round_closing not in ("sight", "wrist"):
-            raise ValueError(f"round_closing is 'sight' or 'wrist', not {self.round_closing!r}")
 
 
 class Phase(enum.IntEnum):
@@ -159,7 +148,7 @@ class ScriptedExpert:
         """Closing direction across the object's narrow horizontal axis, the one nearest the hand's now."""
         now = fingers_yaw(rot)
         if self.round_in_plan():
-            return now if self.config.round_closing == "wrist" else nearest_turn(now, SIGHT_YAW)
+            return now  # turning the wrist only costs time
         mat = np.zeros(9)
         mujoco.mju_quat2Mat(mat, obj_quat)
         axis = mat.reshape(3, 3)[:, 0 if self._extent[0] <= self._extent[1] else 1]
