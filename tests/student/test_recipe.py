@@ -459,8 +459,9 @@ def test_the_readout_reports_how_much_of_a_near_miss_it_sees():
 
 def test_the_readout_names_the_kind_it_misplaces():
     """Near the object, each kind's mean error vector: a kind read 2 cm off in x every frame shows as
-    (2, 0, 0), one read exactly as (0, 0, 0); frames far from the object are not counted. A kind with a grasp
-    direction read 30 degrees off shows it; a round kind shows the length of the direction it reads."""
+    (2, 0, 0), one read exactly as (0, 0, 0); frames far from the object are not counted; a size misread
+    shows the same way. A kind with a grasp direction read 30 degrees off shows it; a round kind shows the
+    length of the direction it reads."""
     from trainer.student.readout import by_kind
 
     labels = np.zeros((6, 12), np.float32)
@@ -470,11 +471,12 @@ def test_the_readout_names_the_kind_it_misplaces():
     estimate[:3, 0] += [0.02, 0.02, 0.05]
     estimate[:3, 3:5] = [[0.6, 0.8], [0.0, 0.0], [0.0, 0.0]]  # the round can read as elongated once, far
     estimate[3:, 3:5] = np.cos(np.pi / 3), np.sin(np.pi / 3)  # read at p = 30 degrees
+    estimate[:2, 5:7] -= 0.008  # the can read 1.6 cm narrower near it
     result = by_kind(estimate, labels, np.array([3, 6]), ["can", "block"])
     assert result["can"] == {"near_frames": 2, "offset_cm_median": 2.0, "mean_error_cm": [2.0, 0.0, 0.0],
-                             "grasp_yaw_length_median": 0.5}
+                             "size_error_cm": [-0.8, -0.8, 0.0], "grasp_yaw_length_median": 0.5}
     assert result["block"] == {"near_frames": 3, "offset_cm_median": 0.0, "mean_error_cm": [0.0, 0.0, 0.0],
-                               "grasp_yaw_deg_median": 30.0}
+                               "size_error_cm": [0.0, 0.0, 0.0], "grasp_yaw_deg_median": 30.0}
 
 
 def test_readout_refuses_an_unknown_kind_in_one_line(tmp_path, capsys):

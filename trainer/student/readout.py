@@ -22,7 +22,7 @@ import torch
 from hil_sim.objects import OBJECTS_HELP, select_kinds
 from trainer.dataset import DemoStore
 from trainer.sim.env import EnvConfig
-from trainer.sim.labels import GRASP_YAW, OFFSET, READOUT
+from trainer.sim.labels import GRASP_YAW, OFFSET, READOUT, SIZE
 from trainer.student import checkpoint
 from trainer.student.dagger import RoundSpec, collect_round
 from trainer.student.steps import LabelledSteps
@@ -99,12 +99,15 @@ def errors(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray) -
 
 
 def by_kind(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray, kinds: list[str]) -> dict:
-    """Near the object, per kind (``kinds``: each episode's): the median offset error, the mean error vector
-    (x, y, z; cm) and, for a kind with a grasp direction, its median error (degrees), else the median length
-    of the direction it reads (0 = "round", 1 = as sure as of an elongated kind's). A shape the readout never
-    learnt shows as a mean error its episodes share, or as a round kind read as elongated."""
+    """Near the object, per kind (``kinds``: each episode's): the median offset error, the mean error vectors
+    of the offset (x, y, z) and of the size (half narrow, long, height; cm) and, for a kind with a grasp
+    direction, its median error (degrees), else the median length of the direction it reads (0 = "round", 1 =
+    as sure as of an elongated kind's). A shape the readout never learnt shows as a mean error its episodes
+    share (the can, read as wide as the training boxes it resembles, is placed too near the camera), or as a
+    round kind read as elongated."""
     error, near = offset_errors(estimate, labels)
     yaw, has_yaw = yaw_errors(estimate, labels), directed(labels)
+    size_error = (estimate[:, SIZE] - labels[:, SIZE]) * 100
     kind_of_frame = np.repeat(np.asarray(kinds), np.diff(episode_ends, prepend=0))
     result = {}
     for kind in dict.fromkeys(kinds):
@@ -112,7 +115,8 @@ def by_kind(estimate: np.ndarray, labels: np.ndarray, episode_ends: np.ndarray, 
         if mask.any():
             result[kind] = {"near_frames": int(mask.sum()),
                             "offset_cm_median": _round(np.median(np.linalg.norm(error[mask], axis=1))),
-                            "mean_error_cm": [_round(v) for v in error[mask].mean(0)]}
+                            "mean_error_cm": [_round(v) for v in error[mask].mean(0)],
+                            "size_error_cm": [_round(v) for v in size_error[mask].mean(0)]}
             if (mask & has_yaw).any():
                 result[kind]["grasp_yaw_deg_median"] = _round(np.median(yaw[mask & has_yaw]))
             if (mask & ~has_yaw).any():
