@@ -9,7 +9,7 @@ import pytest
 from hil_sim import objects
 from hil_sim.world import TABLE_Z, World
 
-TRAINING = objects.GROUPS["shapes"] + objects.GROUPS["squares"] + objects.GROUPS["widesquares"]
+TRAINING = objects.GROUPS["shapes"] + objects.GROUPS["squares"]
 
 
 @pytest.fixture(scope="module")
@@ -42,23 +42,6 @@ def test_squares_are_boxes_round_to_the_labels_and_kept_out_of_train() -> None:
     names = objects.GROUPS["squares"]
     assert not set(names) & set(objects.GROUPS["train"] + objects.GROUPS["all"])
     assert objects.select_kinds("seen,squares,can") == objects.SEEN + names + ("can",)
-
-
-def test_wide_squares_are_square_boxes_as_tall_and_as_wide_as_the_can() -> None:
-    """The readout learns a tall round object's width from them; the can is 6.6 cm across, 12 cm tall."""
-    from trainer.sim.labels import grasp_yaw
-
-    halves = []
-    for kind in objects.WIDE_SQUARES:
-        (geom,) = kind.geoms
-        assert geom.type == "box" and 0.05 <= geom.size[2] <= 0.065, kind.name
-        assert not grasp_yaw(np.array([1.0, 0, 0, 0]), np.array(geom.size)).any(), kind.name
-        halves.append(geom.size[0])
-    assert max(h for k in objects.SQUARES for h in k.geoms[0].size[:2]) < max(halves)
-    can = objects.KINDS["can"].geoms[0].size[0]
-    assert min(halves) < can - 0.005 and max(halves) > can - 0.001, "from the squares' width to the can's"
-    names = objects.GROUPS["widesquares"]
-    assert not set(names) & set(objects.GROUPS["train"] + objects.GROUPS["all"] + objects.GROUPS["squares"])
 
 
 @pytest.mark.parametrize("kind", TRAINING)
