@@ -140,27 +140,16 @@ def _shape(i: int, rng: np.random.Generator) -> ObjectKind:
     return _training_kind(f"shape{i:02d}", geom, volume, rng)
 
 
-def _square(i: int, rng: np.random.Generator, half_m: tuple[float, float] = (0.022, 0.026),
-            prefix: str = "square") -> ObjectKind:
+def _square(i: int, rng: np.random.Generator) -> ObjectKind:
     """Training box ``square<i>``: square in plan view (sides within 4 %, so round to the labels and the
     expert: any closing direction), flat-topped, 4.4-5.2 cm across and 10-13 cm tall, as the can (12) and
     taller than any shape. No training kind was over 10.4 cm tall, the tall ones all elongated, and the
     readout read a round object 12 cm tall (the can, a cylinder of its size) as elongated even after square
     boxes up to 8.7 cm tall had taught it round ones up to 9.5 cm (docs/history.md, 2026-11-30). Across the
     diagonal, the widest grasp, one is at most 7.35 cm (the gripper opens 8)."""
-    half = rng.uniform(*half_m)
+    half = rng.uniform(0.022, 0.026)
     size = (half, half * rng.uniform(1.0, 1.04), rng.uniform(0.05, 0.065))
-    return _training_kind(f"{prefix}{i:02d}", Geom("box", size), 8 * math.prod(size), rng)
-
-
-def _oval(i: int, rng: np.random.Generator) -> ObjectKind:
-    """Training ellipsoid ``oval<i>``, lying: 4.8-6.8 cm across its narrow side, 12-40 % longer, a little
-    lower than wide. The shapes' ellipsoids are drawn up to 3x as long; few are this near round, where the
-    grasp direction is hard to read and still matters (the lemon: 5.4 x 6.8 cm, read off by the readout in
-    direction and offset both, docs/history.md, 2026-11-30)."""
-    narrow = rng.uniform(0.024, 0.034)
-    size = (narrow * rng.uniform(1.12, 1.4), narrow, narrow * rng.uniform(0.8, 0.95))
-    return _training_kind(f"oval{i:02d}", Geom("ellipsoid", size), 4 / 3 * math.pi * math.prod(size), rng)
+    return _training_kind(f"square{i:02d}", Geom("box", size), 8 * math.prod(size), rng)
 
 
 def _training_kind(name: str, geom: Geom, volume: float, rng: np.random.Generator) -> ObjectKind:
@@ -187,25 +176,13 @@ _SQUARE_RNG = np.random.default_rng(SQUARE_SEED)
 SQUARES: tuple[ObjectKind, ...] = tuple(_square(i, _SQUARE_RNG) for i in range(SQUARE_COUNT))
 """Square training boxes (group ``squares``), apart from ``SHAPES`` so that ``train`` stays what the
 lineages before them were trained on."""
-_WIDE_RNG = np.random.default_rng(SQUARE_SEED + 1)
-WIDE_SQUARES: tuple[ObjectKind, ...] = tuple(_square(i, _WIDE_RNG, (0.026, 0.034), "widesquare")
-                                             for i in range(SQUARE_COUNT))
-"""Tall square boxes 5.2-6.8 cm across (group ``widesquares``), for the readout: it read the can (6.6 cm
-across) as ``squares``' 5 cm and placed its centre 0.76 cm too near the camera (docs/history.md,
-2026-11-30). Across the diagonal most are wider than the gripper opens: they teach perception, and the
-expert grasps them only when their flats face the fingers."""
-_OVAL_RNG = np.random.default_rng(SQUARE_SEED + 2)
-OVALS: tuple[ObjectKind, ...] = tuple(_oval(i, _OVAL_RNG) for i in range(SQUARE_COUNT))
-"""Near-round lying ellipsoids (group ``ovals``): the readout's grasp direction on weakly elongated kinds."""
-KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN + SHAPES + SQUARES + WIDE_SQUARES + OVALS}
+KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN + SHAPES + SQUARES}
 SEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if k.seen)
 UNSEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if not k.seen)
 GROUPS: dict[str, tuple[str, ...]] = {"seen": SEEN, "unseen": UNSEEN, "all": SEEN + UNSEEN,
                                       "shapes": tuple(k.name for k in SHAPES),
                                       "train": SEEN + tuple(k.name for k in SHAPES),
-                                      "squares": tuple(k.name for k in SQUARES),
-                                      "widesquares": tuple(k.name for k in WIDE_SQUARES),
-                                      "ovals": tuple(k.name for k in OVALS)}
+                                      "squares": tuple(k.name for k in SQUARES)}
 OBJECTS_HELP = f"kinds, object files and groups ({', '.join(GROUPS)}), comma-separated"
 """The ``--objects`` help of every command (each resolves it with ``select_kinds``)."""
 _MESH_SUFFIXES = (".stl", ".obj")

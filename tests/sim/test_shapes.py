@@ -9,8 +9,7 @@ import pytest
 from hil_sim import objects
 from hil_sim.world import TABLE_Z, World
 
-TRAINING = (objects.GROUPS["shapes"] + objects.GROUPS["squares"] + objects.GROUPS["widesquares"]
-            + objects.GROUPS["ovals"])
+TRAINING = objects.GROUPS["shapes"] + objects.GROUPS["squares"]
 
 
 @pytest.fixture(scope="module")
@@ -43,37 +42,6 @@ def test_squares_are_boxes_round_to_the_labels_and_kept_out_of_train() -> None:
     names = objects.GROUPS["squares"]
     assert not set(names) & set(objects.GROUPS["train"] + objects.GROUPS["all"])
     assert objects.select_kinds("seen,squares,can") == objects.SEEN + names + ("can",)
-
-
-def test_wide_squares_are_square_boxes_as_tall_and_as_wide_as_the_can() -> None:
-    """The readout learns a tall round object's width from them; the can is 6.6 cm across, 12 cm tall."""
-    from trainer.sim.labels import grasp_yaw
-
-    halves = []
-    for kind in objects.WIDE_SQUARES:
-        (geom,) = kind.geoms
-        assert geom.type == "box" and 0.05 <= geom.size[2] <= 0.065, kind.name
-        assert not grasp_yaw(np.array([1.0, 0, 0, 0]), np.array(geom.size)).any(), kind.name
-        halves.append(geom.size[0])
-    assert max(h for k in objects.SQUARES for h in k.geoms[0].size[:2]) < max(halves)
-    can = objects.KINDS["can"].geoms[0].size[0]
-    assert min(halves) < can - 0.005 and max(halves) > can - 0.001, "from the squares' width to the can's"
-    names = objects.GROUPS["widesquares"]
-    assert not set(names) & set(objects.GROUPS["train"] + objects.GROUPS["all"] + objects.GROUPS["squares"])
-
-
-def test_ovals_are_lying_ellipsoids_near_round_and_directed_to_the_labels() -> None:
-    """The readout learns a weakly elongated kind's grasp direction from them (the lemon: 6.8 x 5.4 cm)."""
-    from trainer.sim.labels import grasp_yaw
-
-    for kind in objects.OVALS:
-        (geom,) = kind.geoms
-        long, narrow, height = geom.size
-        assert geom.type == "ellipsoid" and 1.1 < long / narrow < 1.45 and height < narrow, kind.name
-        assert 2 * narrow < objects.MAX_WIDTH_M, kind.name
-        assert np.allclose(grasp_yaw(np.array([1.0, 0, 0, 0]), np.array(geom.size)), [-1, 0]), kind.name
-    names = objects.GROUPS["ovals"]
-    assert not set(names) & set(objects.GROUPS["train"] + objects.GROUPS["all"] + objects.GROUPS["squares"])
 
 
 @pytest.mark.parametrize("kind", TRAINING)
