@@ -152,6 +152,17 @@ def _square(i: int, rng: np.random.Generator) -> ObjectKind:
     return _training_kind(f"square{i:02d}", Geom("box", size), 8 * math.prod(size), rng)
 
 
+def _scaled(kind: ObjectKind, scale: float) -> ObjectKind:
+    """A seen kind made ``scale`` times as large (category 13, as user objects; mass with the volume)."""
+    def times(values: tuple[float, ...]) -> tuple[float, ...]:
+        return tuple(round(v * scale, 4) for v in values)
+
+    geoms = tuple(Geom(g.type, times(g.size), times(g.pos), g.euler, g.mesh, times(g.fromto))
+                  for g in kind.geoms)
+    mass = round(float(np.clip(kind.mass * scale ** 3, 0.05, 0.35)), 3)
+    return ObjectKind(f"{kind.name}_x{round(scale * 100)}", 13, geoms, mass, kind.friction, kind.rgba)
+
+
 def _training_kind(name: str, geom: Geom, volume: float, rng: np.random.Generator) -> ObjectKind:
     """A one-geom training kind (category 13, as user objects) weighed at ``SHAPE_DENSITY``, of random colour
     and friction."""
@@ -176,13 +187,20 @@ _SQUARE_RNG = np.random.default_rng(SQUARE_SEED)
 SQUARES: tuple[ObjectKind, ...] = tuple(_square(i, _SQUARE_RNG) for i in range(SQUARE_COUNT))
 """Square training boxes (group ``squares``), apart from ``SHAPES`` so that ``train`` stays what the
 lineages before them were trained on."""
-KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN + SHAPES + SQUARES}
+_NARROW_CM = {"apple": 7.2, "pear": 6.6, "peach": 6.4, "banana": 3.6, "cube": 5.0, "block": 5.0}
+_SCALE_RNG = np.random.default_rng(SQUARE_SEED + 3)
+SCALED: tuple[ObjectKind, ...] = tuple(
+    _scaled(k, round(float(_SCALE_RNG.uniform(*span)), 2)) for k in BUILTIN if k.seen
+    for span in ((0.75, 0.9), (1.1, min(1.3, 7.4 / _NARROW_CM[k.name]))) if span[0] < span[1])
+"""The seen kinds smaller and larger (group ``scaled``): round objects of sizes the readout must read."""
+KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN + SHAPES + SQUARES + SCALED}
 SEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if k.seen)
 UNSEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if not k.seen)
 GROUPS: dict[str, tuple[str, ...]] = {"seen": SEEN, "unseen": UNSEEN, "all": SEEN + UNSEEN,
                                       "shapes": tuple(k.name for k in SHAPES),
                                       "train": SEEN + tuple(k.name for k in SHAPES),
-                                      "squares": tuple(k.name for k in SQUARES)}
+                                      "squares": tuple(k.name for k in SQUARES),
+                                      "scaled": tuple(k.name for k in SCALED)}
 OBJECTS_HELP = f"kinds, object files and groups ({', '.join(GROUPS)}), comma-separated"
 """The ``--objects`` help of every command (each resolves it with ``select_kinds``)."""
 _MESH_SUFFIXES = (".stl", ".obj")

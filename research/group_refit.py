@@ -6,9 +6,9 @@ can) teach the readout what one round at its natural share did not?
         --shares seen=0.4 wide=0.25 square=0.15 --steps 1500 --head $R/recipe/m0_sq/fit/round0/ckpt.pt \
         --out $R/research/wfit
 
-Groups are named by a kind's prefix (``seen`` is the seen kinds); every step of a group not named shares
-what is left. The fit is ``trainer.student.distill`` with only its batch weights replaced, at the recipe's
-settings.
+Groups are named as ``hil_sim.objects`` names them or by a kind's prefix; every step of a group not named
+shares what is left. The fit is ``trainer.student.distill`` with only its batch weights replaced, at the
+recipe's settings.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hil_sim.objects import SEEN
+from hil_sim.objects import GROUPS, SEEN
 from trainer.sim.env import EnvConfig
 from trainer.student import distill as distill_module
 from trainer.student.checkpoint import TrainingInfo
@@ -29,9 +29,12 @@ from trainer.student.train import CKPT_NAME
 
 
 def group_of(kind: str, names: list[str]) -> str:
+    """``seen``, else the first name that is a group of ``hil_sim.objects`` holding the kind or the kind's
+    prefix (the stores keep kinds that a later commit may have removed), else ``rest``."""
     if kind in SEEN:
         return "seen"
-    return next((n for n in names if n != "seen" and kind.startswith(n)), "rest")
+    named = (n for n in names if n != "seen" and (kind in GROUPS.get(n, ()) or kind.startswith(n)))
+    return next(named, "rest")
 
 
 def group_weights(kinds: np.ndarray, shares: dict[str, float]) -> torch.Tensor:

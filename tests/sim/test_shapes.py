@@ -9,7 +9,7 @@ import pytest
 from hil_sim import objects
 from hil_sim.world import TABLE_Z, World
 
-TRAINING = objects.GROUPS["shapes"] + objects.GROUPS["squares"]
+TRAINING = objects.GROUPS["shapes"] + objects.GROUPS["squares"] + objects.GROUPS["scaled"]
 
 
 @pytest.fixture(scope="module")
@@ -42,6 +42,20 @@ def test_squares_are_boxes_round_to_the_labels_and_kept_out_of_train() -> None:
     names = objects.GROUPS["squares"]
     assert not set(names) & set(objects.GROUPS["train"] + objects.GROUPS["all"])
     assert objects.select_kinds("seen,squares,can") == objects.SEEN + names + ("can",)
+
+
+def test_scaled_kinds_are_the_seen_kinds_scaled_and_kept_out_of_train() -> None:
+    """Every geom's sizes and place grow by one factor per kind, a smaller and a larger copy where it fits."""
+    for kind in objects.SCALED:
+        base, _, percent = kind.name.partition("_x")
+        scale, source = int(percent) / 100, objects.KINDS[base]
+        assert base in objects.SEEN and scale != 1, kind.name
+        for geom, original in zip(kind.geoms, source.geoms, strict=True):
+            assert geom.type == original.type, kind.name
+            np.testing.assert_allclose(geom.size, np.array(original.size) * scale, atol=1e-4)
+            np.testing.assert_allclose(geom.pos, np.array(original.pos) * scale, atol=1e-4)
+    assert {k.name.partition("_x")[0] for k in objects.SCALED} == set(objects.SEEN)
+    assert not set(objects.GROUPS["scaled"]) & set(objects.GROUPS["train"] + objects.GROUPS["all"])
 
 
 @pytest.mark.parametrize("kind", TRAINING)
