@@ -9,7 +9,7 @@ import pytest
 from hil_sim import objects
 from hil_sim.world import TABLE_Z, World
 
-TRAINING = objects.GROUPS["shapes"] + objects.GROUPS["squares"] + objects.GROUPS["scaled"]
+TRAINING = objects.GROUPS["shapes"] + objects.GROUPS["squares"]
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +49,7 @@ def test_scaled_kinds_are_the_seen_kinds_scaled_and_kept_out_of_train() -> None:
     for kind in objects.SCALED:
         base, _, percent = kind.name.partition("_x")
         scale, source = int(percent) / 100, objects.KINDS[base]
-        assert base in objects.SEEN and scale != 1, kind.name
+        assert base in objects.SEEN and (0.75 <= scale <= 0.9 or 1.1 <= scale <= 1.3), kind.name
         for geom, original in zip(kind.geoms, source.geoms, strict=True):
             assert geom.type == original.type, kind.name
             np.testing.assert_allclose(geom.size, np.array(original.size) * scale, atol=1e-4)
