@@ -192,7 +192,8 @@ _SCALE_RNG = np.random.default_rng(SQUARE_SEED + 3)
 SCALED: tuple[ObjectKind, ...] = tuple(
     _scaled(k, round(float(_SCALE_RNG.uniform(*span)), 2)) for k in BUILTIN if k.seen
     for span in ((0.75, 0.9), (1.1, min(1.3, 7.4 / _NARROW_CM[k.name]))) if span[0] < span[1])
-"""The seen kinds smaller and larger (group ``scaled``): round objects of sizes the readout must read."""
+"""The seen kinds smaller and larger (group ``scaled``): known shapes at sizes the readout must read, not
+recall (``_NARROW_CM``: each kind's narrow side, so that a larger copy still fits the 8 cm stroke)."""
 KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN + SHAPES + SQUARES + SCALED}
 SEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if k.seen)
 UNSEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if not k.seen)
