@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -586,9 +587,9 @@ def test_round_0_starts_from_init_at_another_resolution_and_a_mismatched_one_is_
     assert all(torch.equal(fitted.model[k], source.ema[k]) for k in source.ema)
 
 
-def test_a_seen_share_draws_that_share_of_each_batch_from_the_seen_kinds(tmp_path):
-    """Steps know their episode's kind; with a seen share the fit draws the seen kinds' steps that often,
-    however few of them the stores hold."""
+def test_shares_draw_each_named_group_that_share_of_each_batch(tmp_path):
+    """Steps know their episode's kind; with shares the fit draws each named group's steps that often (the
+    first named group that holds a kind takes it), the other steps what is left, however few each holds."""
     from trainer.student.distill import batch_weights
     from trainer.student.steps import LabelledSteps
 
@@ -598,21 +599,28 @@ def test_a_seen_share_draws_that_share_of_each_batch_from_the_seen_kinds(tmp_pat
     steps = LabelledSteps([tmp_path / "round0.zarr"], obs_horizon=3, action_horizon=4, depth=False)
     lengths = np.diff(store.episode_ends, prepend=0)
     assert list(steps.kinds) == list(np.repeat(store.kinds, lengths))
-    kinds = np.array(["cube"] * 10 + ["shape03"] * 90)
-    assert batch_weights(kinds, None) is None
-    draws = torch.multinomial(batch_weights(kinds, 0.5), 20_000, replacement=True,
-                              generator=torch.Generator().manual_seed(0))
-    assert abs(float((draws < 10).float().mean()) - 0.5) < 0.02
-    with pytest.raises(ValueError, match="no seen kinds"):
-        batch_weights(np.array(["shape03"] * 5), 0.5)
+    kinds = np.array(["cube"] * 10 + ["apple_x89"] * 30 + ["square00"] * 20 + ["shape03"] * 40)
+    assert batch_weights(kinds, ()) is None
+    weights = batch_weights(kinds, ("seen=0.4", "scaled=0.25", "squares=0.15"))
+    draws = torch.multinomial(weights, 40_000, replacement=True, generator=torch.Generator().manual_seed(0))
+    drawn = np.bincount(np.digitize(draws.numpy(), [10, 40, 60]), minlength=4) / len(draws)
+    assert np.allclose(drawn, [0.4, 0.25, 0.15, 0.2], atol=0.01)
+    first = batch_weights(kinds, ("cube=0.3", "train=0.3"))  # cube is in train: the first group takes it
+    assert float(first[:10].sum()) == pytest.approx(0.3) and float(first[60:].sum()) == pytest.approx(0.3)
+    with pytest.raises(ValueError, match="no step's kind is in it"):
+        batch_weights(np.array(["shape03"] * 5), ("seen=0.5",))
+    with pytest.raises(ValueError, match="leave nothing for the 40 steps"):
+        batch_weights(kinds, ("seen=0.5", "scaled=0.3", "squares=0.2"))
 
 
-def test_a_seen_share_outside_0_1_or_without_both_sorts_of_kinds_is_refused_in_one_line(capsys):
+@pytest.mark.parametrize("shares, message", [
+    (["seen=1.5"], "each share between 0 and 1"), (["seen"], "GROUP=SHARE"),
+    (["seen=0.6", "shapes=0.6"], "add up to 1.2"), (["lemon=0.3"], "--shares names lemon, which neither"),
+    (["sen=0.3"], "sen")])
+def test_bad_shares_are_refused_in_one_line_before_any_work(capsys, shares, message):
     from trainer.student.recipe import main
 
-    assert main(["--out", "/nonexistent/recipe", "--seen-share", "1.5"]) == 2
+    assert main(["--out", "/nonexistent/recipe", "--objects", "train", "--shares", *shares]) == 2
     err = capsys.readouterr().err.strip()
-    assert "seen_share must be between 0 and 1" in err and "\n" not in err
-    assert main(["--out", "/nonexistent/recipe", "--seen-share", "0.5", "--objects", "seen"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert "--objects seen holds only one sort" in err and "\n" not in err
+    assert message in err and "\n" not in err
+    assert not Path("/nonexistent/recipe").exists()

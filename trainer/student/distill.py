@@ -18,7 +18,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from hil_sim.objects import SEEN
+from hil_sim.objects import GROUPS
 from trainer.diffusion import training_target
 from trainer.sim.labels import HAND_PX, OBJECT_PX, OFFSET, READOUT
 from trainer.student import checkpoint
@@ -62,13 +62,16 @@ class DistillConfig:
     repeated) and its keypoint labels with it; the offset label, object minus hand, holds under the shift.
     Against a readout that places things by where they sit in the image: the 400-demo fit read its training
     episodes' offsets to 0.15 cm and held-out ones to 1.0 cm (``docs/history.md``, 2026-11-27)."""
-    seen_share: float | None = None
-    """The share of each batch drawn from steps of seen-kind episodes (``hil_sim.objects.SEEN``); None draws
-    every step alike. On ``--objects train`` (the 6 seen kinds and 24 shapes) the seen kinds hold ~20 % of
-    the steps, a fifth of what a recipe on the seen kinds alone gives them: the lost ``s2k`` rounds 0-5, on
-    the seen kinds alone, read them to 0.64 cm near the object at round 4, ``s_dev`` on ``train`` 1.18 cm. A
-    round refitted with 0.5 on the same data grasped 66.7 against 61.1 % seen (18 episodes won, 8 lost: not
-    cleared), its readout no better (``docs/history.md``, 2026-11-29)."""
+    shares: tuple[str, ...] = ()
+    """``GROUP=SHARE`` items: each batch draws that share of its steps from the named group's (a group of
+    ``hil_sim.objects`` or one kind; a step belongs to the first named group that holds its kind), and what is
+    left from the other steps; () draws every step alike. On ``--objects train`` (the 6 seen kinds and 24
+    shapes) the seen kinds hold ~20 % of the steps, a fifth of what a recipe on the seen kinds alone gives
+    them: the lost ``s2k`` rounds 0-5, on the seen kinds alone, read them to 0.64 cm near the object at round
+    4, ``s_dev`` on ``train`` 1.18 cm. A round refitted with ``seen=0.5`` on the same data grasped 66.7
+    against 61.1 % seen (18 episodes won, 8 lost: not cleared), its readout no better (``docs/history.md``,
+    2026-11-29). A scarce group needs a share of its own to teach the readout: one round on the seen kinds
+    scaled (``scaled``) refitted with ``seen=0.4 scaled=0.25 squares=0.15`` (2026-11-30)."""
     precision: str = "fp32"
     """The arithmetic of the fit's forward pass: fp32, or bf16 (``torch.autocast``: the weights, the optimiser
     and the losses stay fp32). On 2 CPU cores a recipe round's fit took 1.17 s a step in bf16 against 1.50 in
@@ -87,8 +90,7 @@ class DistillConfig:
         for name in ("steps", "batch", "ckpt_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.seen_share is not None and not 0 < self.seen_share < 1:
-            raise ValueError(f"seen_share must be between 0 and 1 (exclusive), got {self.seen_share}")
+        parse_shares(self.shares)
         if not self.max_grad_norm > 0:
             raise ValueError(f"max_grad_norm must be > 0, got {self.max_grad_norm}")
 
@@ -213,7 +215,7 @@ def distill(steps: LabelledSteps, out: Path, model_cfg: StudentConfig, cfg: Dist
     seed = cfg.seed * 1_000_003 + ckpt.step
     gen = torch.Generator(device=dev).manual_seed(seed)
     sampler = torch.Generator().manual_seed(seed)
-    weights = batch_weights(steps.kinds, cfg.seen_share)
+    weights = batch_weights(steps.kinds, cfg.shares)
     began, first, terms = time.perf_counter(), ckpt.step, {}
     bar = tqdm(range(ckpt.step, cfg.steps), initial=ckpt.step, total=cfg.steps, desc=f"fit {out.name}")
     for step in bar:
@@ -235,16 +237,45 @@ def distill(steps: LabelledSteps, out: Path, model_cfg: StudentConfig, cfg: Dist
             "denoise_last_100": float(np.mean(ckpt.losses[-100:])) if ckpt.losses else None}
 
 
-def batch_weights(kinds: np.ndarray, seen_share: float | None) -> torch.Tensor | None:
-    """Each step's chance of being drawn, so that the seen kinds' steps make up ``seen_share`` of a batch;
-    None (draw every step alike) without a share."""
-    if seen_share is None:
+def parse_shares(shares: tuple[str, ...]) -> dict[str, float]:
+    """``("seen=0.4", "scaled=0.25")`` -> ``{"seen": 0.4, "scaled": 0.25}``: each share in (0, 1), together
+    at most 1."""
+    parsed = {}
+    for item in shares:
+        name, sep, value = item.partition("=")
+        try:
+            share = float(value) if sep and name else None
+        except ValueError:
+            share = None
+        if share is None or not 0 < share < 1 or name in parsed:
+            raise ValueError(f"shares wants distinct GROUP=SHARE items with each share between 0 and 1 "
+                             f"(exclusive), got {item!r}")
+        parsed[name] = share
+    if sum(parsed.values()) > 1 + 1e-9:
+        raise ValueError(f"shares add up to {sum(parsed.values()):g}, more than the whole batch")
+    return parsed
+
+
+def batch_weights(kinds: np.ndarray, shares: tuple[str, ...]) -> torch.Tensor | None:
+    """Each step's chance of being drawn, so that each named group's steps make up its share of a batch and
+    the other steps what is left (when every step is in a named group, the shares weigh the groups against
+each other); None (draw every step alike) without shares."""
+    parsed = parse_shares(shares)
+    if not parsed:
         return None
-    seen = np.isin(kinds, SEEN)
-    if seen.all() or not seen.any():
-        raise ValueError(f"seen_share {seen_share} needs steps of seen and of other kinds; these steps hold "
-                         f"{'only' if seen.any() else 'no'} seen kinds")
-    weights = np.where(seen, seen_share / seen.sum(), (1 - seen_share) / (~seen).sum())
+    group = np.full(len(kinds), "", dtype=object)  # "": the steps of no named group
+    for name in reversed(parsed):  # the first named group that holds a kind wins
+        group[np.isin(kinds, GROUPS.get(name, (name,)))] = name
+    left = 1.0 - sum(parsed.values())
+    weights = np.zeros(len(kinds))
+    for name, share in [*parsed.items(), ("", left)]:
+        members = group == name
+        if name and not members.any():
+            raise ValueError(f"shares name {name!r}, but no step's kind is in it (or in it alone: the first "
+                             "named group that holds a kind takes its steps)")
+        if members.any() and share <= 1e-9:
+            raise ValueError(f"shares leave nothing for the {members.sum()} steps of other kinds")
+        weights[members] = share / max(1, members.sum())
     return torch.from_numpy(weights)
 
 

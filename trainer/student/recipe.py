@@ -36,7 +36,7 @@ from pathlib import Path
 
 import torch
 
-from hil_sim.objects import GROUPS, SEEN, select_kinds
+from hil_sim.objects import GROUPS, select_kinds
 from runtime.preprocess import DepthSpec
 from trainer.argspec import add_dataclass_args, from_args
 from trainer.dataset import DatasetError, DemoStore
@@ -48,7 +48,7 @@ from trainer.student.checkpoint import TrainingInfo
 from trainer.student.compose import compose
 from trainer.student.config import StudentConfig
 from trainer.student.dagger import RoundSpec, collect_round
-from trainer.student.distill import DistillConfig, device, distill
+from trainer.student.distill import DistillConfig, device, distill, parse_shares
 from trainer.student.readout import measure
 from trainer.student.steps import LabelledSteps
 from trainer.student.train import CKPT_NAME
@@ -130,8 +130,9 @@ class RecipeConfig:
     near_loss: float = 0.0
     """Weight of the readout's offset error relative to the distance to the object
     (``DistillConfig.near_loss``)."""
-    seen_share: float | None = None
-    """The share of each fit's batches drawn from the seen kinds' steps (``DistillConfig.seen_share``)."""
+    shares: tuple[str, ...] = ()
+    """``GROUP=SHARE`` items: the share of each fit's batches drawn from a group's steps, the rest from the
+    others' (``DistillConfig.shares``); rounds still to come may change them."""
     ddim_steps: int = 4
     workers: int = 2
     """Rollout processes (collection and evaluation)."""
@@ -154,7 +155,7 @@ class RecipeConfig:
 
     def distill(self, steps: int) -> DistillConfig:
         return DistillConfig(steps=steps, batch=self.batch, lr=self.lr, shift_px=self.shift_px,
-                             near_loss=self.near_loss, seen_share=self.seen_share, precision=self.precision,
+                             near_loss=self.near_loss, shares=self.shares, precision=self.precision,
                              seed=self.seed)
 
 
@@ -354,12 +355,21 @@ class Recipe:
 
 
 RESUMABLE = {"workers", "threads", "precision", "curve_episodes", "eval_episodes", "rounds", "round_steps",
-             "round_episodes", "round_objects"}
+             "round_episodes", "round_objects", "shares"}
 """Settings a resume may change: how the work is spread and computed, how much is measured, how many more
 rounds, and how many episodes the rounds still to come collect and how long they fit (a round the curve has
-measured keeps its data and weights), and the kinds they draw.
+measured keeps its data and weights), the kinds they draw and the shares their fits weigh them by.
 Precision is one: round 4 of the same recipe fitted in bf16 and in fp32 from the same round 3, same data and
 seeds, grasped 78.3 / 61.7 % against 75.6 / 65.0 % (paired 11 / 6 seen, 8 / 14 unseen; neither clears)."""
+
+
+def check_shares(cfg: RecipeConfig, resumed: bool) -> None:
+    """Misspelt groups found now, not after the demos; in a new folder also shares of groups its episodes
+    never draw (a resumed recipe's earlier rounds may have drawn other kinds: its fits check their steps)."""
+    drawn = set(select_kinds(cfg.objects)) | set(select_kinds(cfg.round_objects or cfg.objects))
+    for name in parse_shares(cfg.shares):
+        if not (drawn & set(select_kinds(name)) or resumed):
+            raise ValueError(f"--shares names {name}, which neither --objects nor --round-objects draws")
 
 
 def export(ckpt: Path, out: Path, ddim_steps: int, head: Path | None = None) -> None:
@@ -423,11 +433,6 @@ def main(argv: list[str] | None = None) -> int:
         if cfg.head and cfg.perception != "depth":
             raise ValueError("--head composes a depth student's perception with a privileged head: it needs "
                              "--perception depth")
-        if cfg.seen_share is not None and len({k in SEEN for k in select_kinds(cfg.objects)}) < 2:
-            raise ValueError(f"--seen-share weighs the seen kinds against the others: --objects "
-                             f"{cfg.objects} holds only one sort (train holds both)")
-        if cfg.round_objects:
-            select_kinds(cfg.round_objects)  # a misspelt kind now, not after the demos
         if cfg.hover_episodes and not cfg.head:
             raise ValueError("--hover-episodes needs --head: the privileged head drives them")
         if cfg.head and not Path(cfg.head).is_file():  # found now, not by the first worker that loads it
@@ -437,6 +442,7 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--init {cfg.init} is a student of other settings than --width, --head-dims, "
                              "--state-features, --exec-horizon, --prediction and --head-features ask")
         out = args.out or default_home() / "recipe" / args.name
+        check_shares(cfg, resumed=(out / "recipe.json").is_file())
         summary = Recipe(out, cfg).run()
     except (ValueError, DatasetError, OSError, subprocess.CalledProcessError) as exc:
         print(f"error: {exc}", file=sys.stderr)
