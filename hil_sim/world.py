@@ -190,9 +190,9 @@ class World:
         if r.object_scale == (1.0, 1.0):  # drawn last and only when asked: default episodes as they were
             return episode
         obj = self._ids.objects[kind]
-        top = MAX_NARROW_M / (2 * min(obj.half_extent[:2])) if obj.scalable else 1.0
-        low, high = min(r.object_scale[0], top), min(r.object_scale[1], top)
-        return replace(episode, object_scale=math.floor(rng.uniform(low, high) * 1e4) / 1e4)  # never over top
+        largest = MAX_NARROW_M / (2 * min(obj.half_extent[:2])) if obj.scalable else 1.0
+        low, high = min(r.object_scale[0], largest), min(r.object_scale[1], largest)
+        return replace(episode, object_scale=math.floor(rng.uniform(low, high) * 1e4) / 1e4)  # rounded down
 
     def _nominal_episode(self, kind: str, seed: int, xy, yaw) -> Episode:
         quat = look_at_quat(np.asarray(CAMERA_POS), np.asarray(CAMERA_TARGET))
