@@ -13,10 +13,9 @@ Objects start at random in a 40 cm (y) x 30 cm (x) workspace centred 50 cm in fr
 from __future__ import annotations
 
 import copy
-import math
 import os
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
@@ -48,8 +47,6 @@ CAMERA = "d455"
 POLICY_CAMERA = "d455_policy"
 """The same camera seeing only the episode's crop window at the policy resolution (8x cheaper to render)."""
 SETTLE_S = 0.3
-MAX_NARROW_M = 0.074
-"""The widest narrow side an object scaled up may have: the open gripper spans 8 cm."""
 _PARK_Z = -0.5
 
 
@@ -96,11 +93,6 @@ class Randomisation:
     """Uniform +- rotation of the camera about each of its axes, degrees."""
     crop_shift: tuple[int, int] = (30, 40)
     """Max +- shift (rows, cols) of the depth crop window from the centred one, pixels."""
-    object_scale: tuple[float, float] = (1.0, 1.0)
-    """Range of a multiplier on the episode's object's size about its centre (its primitives' sizes and
-    places; mass with the volume), capped so that its narrow side stays within ``MAX_NARROW_M``; kinds with
-    meshes keep their size. (1, 1), the default, draws nothing. For training: a readout that recalls each
-    kind's size must then read it."""
 
 
 @dataclass(frozen=True)
@@ -120,7 +112,6 @@ class Episode:
     joint_friction: tuple[float, ...] = ()
     joint_damping_scale: tuple[float, ...] = ()
     joint_stiffness: tuple[float, ...] = ()
-    object_scale: float = 1.0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -181,18 +172,12 @@ class World:
         half = np.r_[np.full(n - 1, r.init_joint_noise), r.wrist_noise]
         noise = -half + 2 * half * rng.random(n)
         q0 = np.asarray(HOME_Q) + noise
-        episode = Episode(kind, seed, True, _round(xy), float(yaw), _round(q0), (top, left), _round(cam_pos),
-                          _round(quat),
-                          link_mass_scale=_round(rng.uniform(*r.link_mass_scale, len(self._ids.links))),
-                          joint_friction=_round(rng.uniform(*r.joint_friction, n)),
-                          joint_damping_scale=_round(rng.uniform(*r.joint_damping_scale, n)),
-                          joint_stiffness=_round(rng.uniform(*r.joint_stiffness, n)))
-        if r.object_scale == (1.0, 1.0):  # drawn last and only when asked: default episodes as they were
-            return episode
-        obj = self._ids.objects[kind]
-        largest = MAX_NARROW_M / (2 * min(obj.half_extent[:2])) if obj.scalable else 1.0
-        low, high = min(r.object_scale[0], largest), min(r.object_scale[1], largest)
-        return replace(episode, object_scale=math.floor(rng.uniform(low, high) * 1e4) / 1e4)  # rounded down
+        return Episode(kind, seed, True, _round(xy), float(yaw), _round(q0), (top, left), _round(cam_pos),
+                       _round(quat),
+                       link_mass_scale=_round(rng.uniform(*r.link_mass_scale, len(self._ids.links))),
+                       joint_friction=_round(rng.uniform(*r.joint_friction, n)),
+                       joint_damping_scale=_round(rng.uniform(*r.joint_damping_scale, n)),
+                       joint_stiffness=_round(rng.uniform(*r.joint_stiffness, n)))
 
     def _nominal_episode(self, kind: str, seed: int, xy, yaw) -> Episode:
         quat = look_at_quat(np.asarray(CAMERA_POS), np.asarray(CAMERA_TARGET))
@@ -215,38 +200,9 @@ class World:
         d.qpos[ids.arm_qpos] = ep.q0
         d.qpos[ids.finger_qpos] = GRIPPER_OPEN_M
         self.set_targets(np.asarray(ep.q0), -1.0)
-        if ep.object_scale != 1.0:
-            self._scale(ep.kind, ep.object_scale)
         for i, name in enumerate(self.kinds):
             self._place(name, ep if name == ep.kind else None, i)
         mujoco.mj_forward(m, d)
-
-    def _scale(self, kind: str, s: float) -> None:
-        """The object ``s`` times as large about its centre: its geoms' sizes and places, its nested bodies'
-        places, its mass with the volume (within the built-in kinds' 50-350 g) and its inertia with it."""
-        obj = self._ids.objects[kind]
-        if not obj.scalable:
-            raise WorldError(f"object_scale {s}: {kind} has a mesh, which cannot be scaled once compiled")
-        m, geoms, bodies = self.model, obj.all_geoms, obj.bodies
-        for field in (m.geom_size, m.geom_pos, m.geom_rbound, m.geom_aabb):
-            field[geoms] *= s
-        for body in bodies:  # the bodies' bounding volumes, or collisions stop at the compiled size
-            m.bvh_aabb[m.body_bvhadr[body]:m.body_bvhadr[body] + m.body_bvhnum[body]] *= s
-        m.body_pos[bodies[1:]] *= s  # the top body is placed by its free joint
-        m.body_ipos[bodies] *= s
-        total = m.body_mass[bodies].sum()
-        mass = np.clip(total * s ** 3, min(total, 0.05), max(total, 0.35)) / total
-        m.body_mass[bodies] *= mass
-        m.body_inertia[bodies] *= mass * s ** 2
-        # What the compiler derived from them, as it would have for this size (``mj_setConst`` would redo
-        # the whole model's): without it contacts with the heavier body go unstable (the expert lifted 1 of
-        # 20 blocks scaled 1.28x, 20 of 20 of the block compiled at that size)
-        dofs, per_dof = slice(obj.dof, obj.dof + 6), np.repeat((mass, mass * s ** 2), 3)
-        m.body_invweight0[bodies] /= (mass, mass * s ** 2)
-        m.dof_invweight0[dofs] /= per_dof
-        m.dof_M0[dofs] *= per_dof
-        m.dof_length[obj.dof + 3:obj.dof + 6] *= s
-        m.body_subtreemass[bodies] *= mass
 
     def _place(self, name: str, ep: Episode | None, index: int) -> None:
         """Put the episode's object on the table; park the others under the floor, inert."""
@@ -256,7 +212,7 @@ class World:
             m.geom_contype[obj.geoms] = m.geom_conaffinity[obj.geoms] = 0
         m.body_gravcomp[obj.bodies] = 0.0 if active else 1.0
         if active:
-            pos = (*ep.object_xy, TABLE_Z + obj.bottom_offset * ep.object_scale + 0.002)
+            pos = (*ep.object_xy, TABLE_Z + obj.bottom_offset + 0.002)
             quat = (np.cos(ep.object_yaw / 2), 0.0, 0.0, np.sin(ep.object_yaw / 2))
         else:
             pos, quat = (-1.0 - 0.3 * index, 2.0, _PARK_Z), (1.0, 0.0, 0.0, 0.0)
@@ -332,7 +288,7 @@ class World:
 
     def object_extent(self) -> np.ndarray:
         """Half extents (x, y, z) of the current object's bounding box in its own frame, m."""
-        return self._active().half_extent * self.episode.object_scale
+        return self._active().half_extent.copy()
 
     def finger_contacts(self) -> tuple[bool, bool]:
         """Whether the left / right finger touches the current object."""
@@ -396,10 +352,6 @@ class _Object:
     dof: int
     bottom_offset: float
     half_extent: np.ndarray
-    all_geoms: np.ndarray
-    """Every geom of its bodies, visual ones too (what ``Randomisation.object_scale`` scales)."""
-    scalable: bool
-    """Primitives only: a compiled mesh keeps its size."""
 
 
 class _Ids:
@@ -424,10 +376,8 @@ def _object_ids(m: mujoco.MjModel, kind: objects.AnyObject) -> _Object:
     geoms = objects.colliding_geoms(m, body)
     joint = m.body_jntadr[body]
     lo, hi = objects.local_bounds(m, body, geoms)
-    all_geoms = np.flatnonzero(m.body_rootid[m.geom_bodyid] == body)
     return _Object(body, np.flatnonzero(m.body_rootid == body), geoms, int(m.jnt_qposadr[joint]),
-                   int(m.jnt_dofadr[joint]), float(-lo[2]), (hi - lo) / 2, all_geoms,
-                   not np.any(m.geom_type[all_geoms] == mujoco.mjtGeom.mjGEOM_MESH))
+                   int(m.jnt_dofadr[joint]), float(-lo[2]), (hi - lo) / 2)
 
 
 @dataclass
@@ -437,9 +387,7 @@ class _Nominal:
     fields: dict[str, np.ndarray]
 
     NAMES = ("body_mass", "body_inertia", "dof_frictionloss", "dof_damping", "jnt_stiffness", "cam_pos",
-             "cam_quat", "cam_intrinsic", "geom_contype", "geom_conaffinity", "body_gravcomp", "qpos_spring",
-             "geom_size", "geom_pos", "geom_rbound", "geom_aabb", "bvh_aabb", "body_pos", "body_ipos",
-             "body_invweight0", "dof_invweight0", "dof_M0", "dof_length", "body_subtreemass")
+             "cam_quat", "cam_intrinsic", "geom_contype", "geom_conaffinity", "body_gravcomp", "qpos_spring")
 
     @classmethod
     def of(cls, m: mujoco.MjModel) -> _Nominal:

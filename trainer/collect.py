@@ -50,10 +50,6 @@ def build_parser() -> argparse.ArgumentParser:
                    help="uniform +- noise on the wrist's (joint 7) start angle, rad: wider than the default, "
                         "the wrist's angle no longer tells a student which way the expert turns it "
                         "(docs/student.md \"The wrist's turn\")")
-    p.add_argument("--object-scale", type=float, nargs=2, default=EnvConfig.object_scale,
-                   metavar=("LO", "HI"),
-                   help="each episode's object scaled by a factor drawn from [LO, HI] (primitives only, kept "
-                        "within the gripper's stroke): sizes a readout must read, not recall (default 1 1)")
     p.add_argument("--resolution", type=resolution, default=f"{DepthSpec.out_width}x{DepthSpec.out_height}",
                    metavar="WxH", help="policy depth resolution stored, from the same crop window (default "
                    "%(default)s; finer pixels place the object more precisely, at more training cost)")
@@ -90,13 +86,12 @@ def collect(args: argparse.Namespace) -> dict:
         raise ValueError(f"the teacher {args.teacher} reads {sizes(read)}: pass its resolution as "
                          "--resolution")
     config = EnvConfig(objects=kinds, render_depth=not args.no_depth, render_rgb=args.rgb,
-                       wrist_noise=args.wrist_noise, object_scale=tuple(args.object_scale), depth=spec)
+                       wrist_noise=args.wrist_noise, depth=spec)
     store = DemoStore.create(args.out, spec=spec, action_scale=config.action_scale,
                              control_rate_hz=config.control_rate_hz, rgb=args.rgb,
                              sensor=None if args.sensor == "clean" else args.sensor,
                              attrs={"teacher": args.teacher, "seed": args.seed, "objects": list(kinds),
-                                    "action_noise": args.action_noise, "wrist_noise": args.wrist_noise,
-                                    "object_scale": list(args.object_scale)})
+                                    "action_noise": args.action_noise, "wrist_noise": args.wrist_noise})
     start_attempt = int(store.attrs["attempted"])
     limit = args.max_attempts or 2 * args.episodes + 20
     jobs = schedule(kinds, args.seed, limit, start_attempt)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hil_sim.world import CAMERA_POS, HOME_Q, TABLE_Z, Randomisation, World
+from hil_sim.world import CAMERA_POS, HOME_Q, Randomisation, World
 
 
 def _model_params(world: World) -> dict[str, np.ndarray]:
@@ -89,49 +89,3 @@ def test_wrist_noise_alone_when_the_other_joints_start_exactly_home() -> None:
         assert all(abs(q[6] - HOME_Q[6]) <= 1.0 for q in wrists) and np.ptp([q[6] for q in wrists]) > 0.2
     finally:
         world.close()
-
-
-def _object_pixels(world: World, kind: str) -> int:
-    """Pixels of the full frame the object changes (rendered with it, then with it moved away)."""
-    import mujoco
-
-    with_object = world.render_depth().astype(float)
-    obj = world._ids.objects[kind]
-    world.data.qpos[obj.qpos:obj.qpos + 3] = (-1.0, 2.0, -0.5)
-    mujoco.mj_forward(world.model, world.data)
-    return int((np.abs(with_object - world.render_depth()) > 0.005).sum())
-
-
-def test_an_object_scaled_is_that_much_larger_everywhere_and_undone_by_the_next_reset() -> None:
-    """The extent the labels and the expert read, the rest height, the image and the mass all follow the
-    drawn scale; a large block stays stable (the solver's weights follow its mass); the next default episode
-    is what a world never scaled gives."""
-    plain = World(("block", "cube"))
-    scaled = World(("block", "cube"), randomisation=Randomisation(object_scale=(1.25, 1.25)))
-    nominal, big = plain.reset("block", seed=3), scaled.reset("block", seed=3)
-    assert nominal.object_scale == 1.0 and big.object_scale == 1.25
-    assert {**big.to_dict(), "object_scale": 1.0} == nominal.to_dict()  # drawn last: the rest as it was
-    np.testing.assert_allclose(scaled.object_extent(), 1.25 * plain.object_extent())
-    assert scaled.object_pose()[0][2] == pytest.approx(TABLE_Z + scaled.object_extent()[2], abs=1e-3)
-    area = _object_pixels(scaled, "block") / _object_pixels(plain, "block")
-    assert area == pytest.approx(1.25 ** 2, rel=0.1)
-    block = scaled._ids.objects["block"].body
-    assert scaled.model.body_mass[block] == pytest.approx(min(0.35, plain.model.body_mass[block] * 1.25 ** 3))
-    scaled.reset("block", seed=3)
-    scaled.step(2.0)
-    assert np.linalg.norm(scaled.object_pose()[0][:2] - big.object_xy) < 0.005  # left alone, it stays put
-    scaled.randomisation = Randomisation()
-    scaled.reset("block", seed=4)
-    plain.reset("block", seed=4)
-    np.testing.assert_array_equal(scaled.render_depth(), plain.render_depth())
-    for name in ("geom_size", "body_mass", "dof_invweight0", "bvh_aabb"):
-        np.testing.assert_array_equal(getattr(scaled.model, name), getattr(plain.model, name))
-
-
-def test_a_scaled_object_keeps_its_narrow_side_within_the_stroke() -> None:
-    from hil_sim.world import MAX_NARROW_M
-
-    world = World(("apple",), randomisation=Randomisation(object_scale=(1.2, 1.3)))
-    for seed in range(5):
-        world.reset("apple", seed=seed)
-        assert 2 * min(world.object_extent()[:2]) <= MAX_NARROW_M + 1e-9

@@ -63,8 +63,6 @@ class EnvConfig:
     """Domain randomisation (dynamics, initial joints, camera pose, crop window)."""
     wrist_noise: float = Randomisation.wrist_noise
     """Uniform +- noise on the wrist's home angle at reset, rad (``Randomisation.wrist_noise``)."""
-    object_scale: tuple[float, float] = Randomisation.object_scale
-    """Range of the object's size multiplier at reset (``Randomisation.object_scale``; training only)."""
     render_depth: bool = True
     """Render the depth frame every step (off for state-only teachers: much faster)."""
     render_rgb: bool = False
@@ -78,8 +76,6 @@ class EnvConfig:
         if not (self.action_scale > 0 and self.control_rate_hz > 0 and self.max_steps > 0):
             raise ValueError(f"action_scale, control_rate_hz and max_steps must be positive, got "
                              f"{self.action_scale}, {self.control_rate_hz}, {self.max_steps}")
-        if len(self.object_scale) != 2 or not 0 < self.object_scale[0] <= self.object_scale[1]:
-            raise ValueError(f"object_scale must be two numbers 0 < LO <= HI, got {self.object_scale}")
 
 
 class GraspEnv(gym.Env):
@@ -89,8 +85,7 @@ class GraspEnv(gym.Env):
         self.config = config or EnvConfig()
         self.spec = self.config.depth
         self.world = World(self.config.objects, spec=self.spec,
-                           randomisation=Randomisation(wrist_noise=self.config.wrist_noise,
-                                                       object_scale=self.config.object_scale))
+                           randomisation=Randomisation(wrist_noise=self.config.wrist_noise))
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (OBS_DIM,), np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, (ACTION_DIM,), np.float32)
         self._dt = 1.0 / self.config.control_rate_hz

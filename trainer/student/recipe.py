@@ -114,11 +114,6 @@ class RecipeConfig:
     scenes it trained on (``docs/history.md``, 2026-11-29): ``seen`` rounds give those kinds more scenes;
     ``seen,squares`` adds round-in-plan boxes as tall as the can, which the readout otherwise reads as
     elongated (2026-11-30)."""
-    round_object_scale: tuple[float, ...] = (1.0, 1.0)
-    """LO HI: the DAgger rounds' objects scaled by a factor drawn per episode from [LO, HI]
-    (``Randomisation.object_scale``; rounds still to come may change it). The readout recalls a kind's size
-    rather than reading it (seen kinds scaled were read toward their originals' sizes: ``docs/history.md``,
-    2026-11-30); every kind at every size in between leaves it nothing to recall."""
     hover_episodes: int = 0
     """Episodes driven by ``head`` on the true facts offset by ``hover_cm`` in a random horizontal direction
     (fixed per episode), every state labelled by the expert (``data/hover.zarr``, in every fit). They hold
@@ -208,8 +203,8 @@ class Recipe:
         spec = RoundSpec(learner=learner, beta=c.beta * 0.5 ** (r - 1) if r else 0.0,
                          horizon=c.student().action_horizon)
         episodes = c.demos if r == 0 else c.round_episodes
-        env = self.env if r == 0 else replace(self.env, objects=select_kinds(c.round_objects or c.objects),
-                                              object_scale=c.round_object_scale)
+        env = self.env if r == 0 or not c.round_objects else replace(self.env,
+                                                                    objects=select_kinds(c.round_objects))
         if self._episodes(self.store(r)) < episodes:
             tally = collect_round(self.store(r), env, spec, episodes=episodes,
                                   seed=ROUND_SEED + r * 100_000, workers=c.workers)
@@ -360,11 +355,10 @@ class Recipe:
 
 
 RESUMABLE = {"workers", "threads", "precision", "curve_episodes", "eval_episodes", "rounds", "round_steps",
-             "round_episodes", "round_objects", "round_object_scale", "shares"}
+             "round_episodes", "round_objects", "shares"}
 """Settings a resume may change: how the work is spread and computed, how much is measured, how many more
 rounds, and how many episodes the rounds still to come collect and how long they fit (a round the curve has
-measured keeps its data and weights), the kinds they draw, at what sizes, and the shares their fits weigh them
-by.
+measured keeps its data and weights), the kinds they draw and the shares their fits weigh them by.
 Precision is one: round 4 of the same recipe fitted in bf16 and in fp32 from the same round 3, same data and
 seeds, grasped 78.3 / 61.7 % against 75.6 / 65.0 % (paired 11 / 6 seen, 8 / 14 unseen; neither clears)."""
 
@@ -449,7 +443,6 @@ def main(argv: list[str] | None = None) -> int:
                              "--state-features, --exec-horizon, --prediction and --head-features ask")
         out = args.out or default_home() / "recipe" / args.name
         check_shares(cfg, resumed=(out / "recipe.json").is_file())
-        EnvConfig(object_scale=cfg.round_object_scale)  # a bad range now, not after the demos
         summary = Recipe(out, cfg).run()
     except (ValueError, DatasetError, OSError, subprocess.CalledProcessError) as exc:
         print(f"error: {exc}", file=sys.stderr)
