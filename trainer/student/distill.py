@@ -18,7 +18,7 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from hil_sim.objects import GROUPS
+from hil_sim.objects import select_kinds
 from trainer.diffusion import training_target
 from trainer.sim.labels import HAND_PX, OBJECT_PX, OFFSET, READOUT
 from trainer.student import checkpoint
@@ -70,8 +70,8 @@ class DistillConfig:
     them: the lost ``s2k`` rounds 0-5, on the seen kinds alone, read them to 0.64 cm near the object at round
     4, ``s_dev`` on ``train`` 1.18 cm. A round refitted with ``seen=0.5`` on the same data grasped 66.7
     against 61.1 % seen (18 episodes won, 8 lost: not cleared), its readout no better (``docs/history.md``,
-    2026-11-29). A scarce group needs a share of its own to teach the readout: one round on the seen kinds
-    scaled (``scaled``) refitted with ``seen=0.4 scaled=0.25 squares=0.15`` (2026-11-30)."""
+    2026-11-29). A round on the seen kinds scaled (``scaled``) fitted with ``seen=0.4 scaled=0.25
+    squares=0.15`` was level with the file before it (2026-11-30)."""
     precision: str = "fp32"
     """The arithmetic of the fit's forward pass: fp32, or bf16 (``torch.autocast``: the weights, the optimiser
     and the losses stay fp32). On 2 CPU cores a recipe round's fit took 1.17 s a step in bf16 against 1.50 in
@@ -259,13 +259,13 @@ def parse_shares(shares: tuple[str, ...]) -> dict[str, float]:
 def batch_weights(kinds: np.ndarray, shares: tuple[str, ...]) -> torch.Tensor | None:
     """Each step's chance of being drawn, so that each named group's steps make up its share of a batch and
     the other steps what is left (when every step is in a named group, the shares weigh the groups against
-each other); None (draw every step alike) without shares."""
+    each other); None (draw every step alike) without shares."""
     parsed = parse_shares(shares)
     if not parsed:
         return None
     group = np.full(len(kinds), "", dtype=object)  # "": the steps of no named group
     for name in reversed(parsed):  # the first named group that holds a kind wins
-        group[np.isin(kinds, GROUPS.get(name, (name,)))] = name
+        group[np.isin(kinds, select_kinds(name))] = name
     left = 1.0 - sum(parsed.values())
     weights = np.zeros(len(kinds))
     for name, share in [*parsed.items(), ("", left)]:
