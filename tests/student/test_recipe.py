@@ -340,6 +340,20 @@ def test_a_bf16_fit_step_computes_the_fp32_loss_to_within_bf16s_precision():
     assert all(p.dtype == torch.float32 for p in net.parameters())
 
 
+@pytest.mark.parametrize("flags, warned", [({"avx2", "fma"}, True), ({"avx2", "avx512_bf16"}, False),
+                                           ({"avx2", "amx_bf16"}, False), (set(), False)])
+def test_bf16_on_a_cpu_without_bf16_arithmetic_warns_in_one_line(monkeypatch, capsys, flags, warned):
+    """Emulated bf16 is ~13x slower than fp32: the fit says so once, and only where the flags say it is."""
+    from trainer.student import distill
+
+    monkeypatch.setattr(distill, "cpu_flags", lambda: flags)
+    distill.warn_slow_bf16(distill.DistillConfig(precision="bf16"), torch.device("cpu"))
+    distill.warn_slow_bf16(distill.DistillConfig(precision="fp32"), torch.device("cpu"))
+    err = capsys.readouterr().err
+    assert ("bf16 on a CPU without bf16 arithmetic" in err) == warned
+    assert err.count("\n") == int(warned)
+
+
 def test_an_unknown_fit_precision_is_refused_in_one_line(capsys):
     from trainer.student.recipe import main
 
