@@ -64,8 +64,7 @@ def main() -> None:
 def settings(folder: Path, flags: str | None) -> RecipeConfig:
     """The recipe's settings: as its folder stored them, else parsed from ``flags``."""
     if flags is None:
-        return RecipeConfig(**{k: (tuple(v) if isinstance(v, list) else v)
-                               for k, v in stored_settings(folder / "recipe.json").items()})
+        return from_args(RecipeConfig, argparse.Namespace(**stored_settings(folder / "recipe.json")))
     parser = argparse.ArgumentParser(prog="--settings")
     add_dataclass_args(parser, RecipeConfig)
     return from_args(RecipeConfig, parser.parse_args(flags.split()))

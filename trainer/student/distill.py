@@ -113,8 +113,10 @@ def warn_slow_bf16(cfg: DistillConfig, dev: torch.device) -> None:
     """One line on stderr where bf16 is asked of a CPU without bf16 arithmetic: torch emulates it there, and a
     recipe round's fit step took 25.9 s against 1.95 s in fp32 (2 cores of an AVX2-only AMD EPYC,
     2026-12-01), where a CPU with it took 1.17 s against 1.50."""
-    flags = cpu_flags()
-    if cfg.precision == "bf16" and dev.type == "cpu" and flags and not flags & {"avx512_bf16", "amx_bf16"}:
+    if cfg.precision != "bf16" or dev.type != "cpu":
+        return
+    flags = cpu_flags()  # read only where bf16 on a CPU is asked
+    if flags and not flags & {"avx512_bf16", "amx_bf16"}:
         print("warning: --precision bf16 on a CPU without bf16 arithmetic (no avx512_bf16 or amx_bf16) is "
               "about 13x slower than fp32 here; the setting is resumable: repeat with --precision fp32",
               file=sys.stderr)
