@@ -87,20 +87,29 @@ def grasp_rate(policy: ComposedPolicy, objects: str, episodes: int) -> dict:
             "by_kind": {k: sum(v) / len(v) for k, v in by_kind.items()}, "grasped": grasped}
 
 
-def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def parser(doc: str, objects: str, episodes: int) -> argparse.ArgumentParser:
+    """The arguments every composed-policy experiment takes: the depth student, the head, what to run on."""
+    p = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     p.add_argument("student", type=Path)
     p.add_argument("head", type=Path)
-    p.add_argument("--objects", default="seen")
-    p.add_argument("--episodes", type=int, default=60)
+    p.add_argument("--objects", default=objects)
+    p.add_argument("--episodes", type=int, default=episodes)
+    p.add_argument("--out", type=Path, help="the result as JSON (with each episode's outcome, for pairing)")
+    return p
+
+
+def report(result: dict, out: Path | None) -> None:
+    print(json.dumps(result))
+    if out:
+        out.write_text(json.dumps(result, indent=1))
+
+
+def main() -> None:
+    p = parser(__doc__, "seen", 60)
     p.add_argument("--true", nargs="*", default=[], choices=sorted(GROUPS))
-    p.add_argument("--out", type=Path)
     args = p.parse_args()
     policy = ComposedPolicy(args.student, args.head, tuple(args.true))
-    result = {"true": args.true, **grasp_rate(policy, args.objects, args.episodes)}
-    print(json.dumps(result))
-    if args.out:
-        args.out.write_text(json.dumps(result, indent=1))
+    report({"true": args.true, **grasp_rate(policy, args.objects, args.episodes)}, args.out)
 
 
 if __name__ == "__main__":
