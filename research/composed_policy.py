@@ -34,6 +34,7 @@ from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, OFFSET, SIZE, facts
 from trainer.sim.rollout import Job, run_episode
 from trainer.student import checkpoint
+from trainer.student.model import hand_pose
 from trainer.student.oracle_policy import OraclePolicy
 
 GROUPS = {"offset": OFFSET, "offset_xy": slice(0, 2), "offset_z": slice(2, 3), "yaw": GRASP_YAW, "size": SIZE}
@@ -54,11 +55,20 @@ class ComposedPolicy(OraclePolicy):
         super().reset(env_info)
         self.frames.reset()
 
-    def read_facts(self, obs: Observation) -> np.ndarray:
+    def perceive(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+        """The readout's facts (metres) of the current stack and its fine keypoints [K, 2] ([-1, 1])."""
         state = torch.from_numpy(obs.state[None].astype(np.float32))
         with torch.no_grad():
-            _, seen, _ = self.eye.perceive(torch.from_numpy(self.stack[None]), state)
-            row = self.eye.label_norm.unnormalise(seen)[0].numpy()
+            _, seen, fine = self.eye.perceive(torch.from_numpy(self.stack[None]), state)
+            return self.eye.label_norm.unnormalise(seen)[0].numpy(), fine[0].numpy()
+
+    @staticmethod
+    def hand(obs: Observation) -> np.ndarray:
+        """The grasp site (base frame, m) by the Panda's forward kinematics, as the student's graph has it."""
+        return hand_pose(torch.from_numpy(obs.state[None].astype(np.float32)))[0, :3].numpy()
+
+    def read_facts(self, obs: Observation) -> np.ndarray:
+        row, _ = self.perceive(obs)
         truth = facts(obs.privileged, self._extent)
         for group in self.true:
             row[group] = truth[group]
@@ -90,8 +100,8 @@ def grasp_rate(policy: ComposedPolicy, objects: str, episodes: int) -> dict:
 def parser(doc: str, objects: str, episodes: int) -> argparse.ArgumentParser:
     """The arguments every composed-policy experiment takes: the depth student, the head, what to run on."""
     p = argparse.ArgumentParser(description=doc.split("\n\n")[0])
-    p.add_argument("student", type=Path)
-    p.add_argument("head", type=Path)
+    p.add_argument("student", type=Path, help="a depth student's ONNX file (its folder's ckpt.pt reads)")
+    p.add_argument("head", type=Path, help="the privileged head (M0) checkpoint")
     p.add_argument("--objects", default=objects)
     p.add_argument("--episodes", type=int, default=episodes)
     p.add_argument("--out", type=Path, help="the result as JSON (with each episode's outcome, for pairing)")

@@ -9,10 +9,11 @@ the composed student with the new MLP is written (``ckpt.pt``), ready for ``pyth
 
     PYTHONPATH=. python research/frozen_readout.py $R/recovered/shipped/student.pt \
         --train $R/research/fam/fam.zarr --test $R/research/own_unseen.zarr --shares seen=0.4 squares=0.15 \
-        superquadrics=0.45 --steps 4000 --out $R/research/frozen [--rows -4 -2 0 2 4 6] [--save]
+        --steps 4000 --out $R/research/frozen [--rows -4 -2 0 2 4 6] [--save]
 
-``--rows`` adds
-`width_probe.row_half_width` on those image rows around the read object pixel as inputs (zero weights first).
+Shares are ``DistillConfig.shares``: the rest of each batch (here 0.45) comes from the other kinds' steps
+(here the superquadrics, no longer kinds of ``hil_sim.objects``). ``--rows`` adds ``width_probe.half_width``
+on those image rows below the read object pixel as inputs (their weights from zero).
 """
 
 from __future__ import annotations
@@ -24,12 +25,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hil_sim.camera import d455_intrinsics
-from hil_sim.objects import select_kinds
-from research.width_probe import row_half_width
+from research.width_probe import half_width
 from trainer.dataset import DemoStore
 from trainer.sim.labels import READOUT
 from trainer.student import checkpoint
+from trainer.student.distill import batch_weights
 from trainer.student.model import hand_pose
 from trainer.student.readout import by_kind, errors
 from trainer.student.steps import LabelledSteps
@@ -63,29 +63,12 @@ def probe_widths(store: Path, x: np.ndarray, rows: tuple[int, ...], cache: Path)
     if cache.exists():
         return np.load(cache)
     demos = DemoStore.open(store)
-    spec = demos.depth_spec
     depth = demos.depth("gt", demos.n_steps)
-    fx = d455_intrinsics(spec).fx * spec.out_width / spec.crop_width
     kp = x[:, FINE_AT:FINE_AT + 2]
-    u = (kp[:, 0] + 1) / 2 * (spec.out_width - 1)
-    v = (kp[:, 1] + 1) / 2 * (spec.out_height - 1)
-    out = np.array([[row_half_width(depth[i], u[i], v[i] + dv, 15.0, fx) for dv in rows]
-                    for i in range(len(u))], np.float32) / 0.03
+    out = np.array([[half_width(depth[i], kp[i], demos.depth_spec, 15.0, dv) for dv in rows]
+                    for i in range(len(kp))], np.float32) / 0.03
     np.save(cache, out)
     return out
-
-
-def group_of(kinds: np.ndarray, shares: list[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Each frame's group index among ``shares`` (the last index: the rest) and the shares' weights."""
-    names = [s.split("=")[0] for s in shares]
-    weights = [float(s.split("=")[1]) for s in shares]
-    group = np.full(len(kinds), len(names))
-    for g, name in enumerate(names):
-        members = set(select_kinds(name)) if name != "superquadrics" else None
-        for i, kind in enumerate(kinds):
-            if (members is not None and kind in members) or (members is None and kind.startswith("superq")):
-                group[i] = g
-    return group, np.array(weights + [max(0.0, 1 - sum(weights))])
 
 
 def main() -> None:
@@ -120,14 +103,12 @@ def main() -> None:
         mlp[0] = wider
     x = torch.from_numpy(np.concatenate([t["x"] for t in train]))
     y = norm.normalise(torch.from_numpy(np.concatenate([t["labels"] for t in train])))
-    group, weight = group_of(np.concatenate([t["kinds"] for t in train]), args.shares)
-    members = [np.flatnonzero(group == g) for g in range(len(weight))]
-    rng = np.random.default_rng(0)
+    weights = batch_weights(np.concatenate([t["kinds"] for t in train]), tuple(args.shares))
     torch.manual_seed(0)
     opt = torch.optim.AdamW(mlp.parameters(), lr=args.lr, weight_decay=1e-4)
     for step in range(args.steps):
-        counts = rng.multinomial(args.batch, weight / weight.sum())
-        index = np.concatenate([rng.choice(m, c) for m, c in zip(members, counts, strict=True) if len(m)])
+        index = (torch.randint(len(x), (args.batch,)) if weights is None
+                 else torch.multinomial(weights, args.batch, replacement=True))
         loss = torch.nn.functional.mse_loss(mlp(x[index]), y[index])
         opt.zero_grad()
         loss.backward()

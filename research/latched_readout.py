@@ -17,18 +17,15 @@ offset the head reads changes. ``--plain`` runs the same policy without the latc
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from research.composed_policy import ComposedPolicy, grasp_rate
+from research.composed_policy import ComposedPolicy, grasp_rate, parser
 from runtime.preprocess import normalise
 from trainer.dataset import DEPTH_SCALE
 from trainer.sim.labels import OFFSET
-from trainer.student.model import hand_pose
 from trainer.student.oracle_policy import OraclePolicy
 
 HIGH_M = (0.12, 0.30)
@@ -70,19 +67,10 @@ class LatchedPolicy(ComposedPolicy):
             row[OFFSET] = self.total / self.count - self.hand(obs)
         return row
 
-    @staticmethod
-    def hand(obs) -> np.ndarray:
-        return hand_pose(torch.from_numpy(obs.state[None].astype(np.float32)))[0, :3].numpy()
-
 
 def main() -> None:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("student", type=Path, help="a recipe round's ONNX file (its folder's ckpt.pt reads)")
-    p.add_argument("head", type=Path, help="the privileged head (M0) checkpoint")
-    p.add_argument("--objects", default="seen")
-    p.add_argument("--episodes", type=int, default=180)
+    p = parser(__doc__, "seen", 180)
     p.add_argument("--plain", action="store_true", help="without the latch")
-    p.add_argument("--out", type=Path)
     args = p.parse_args()
     policy = LatchedPolicy(args.student, args.head, latch=not args.plain)
     result = {"latch": not args.plain, **grasp_rate(policy, args.objects, args.episodes)}

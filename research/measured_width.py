@@ -19,15 +19,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from hil_sim.camera import d455_intrinsics
-from hil_sim.world import CAMERA_POS
 from research.composed_policy import ComposedPolicy, grasp_rate, parser, report
-from research.width_probe import row_half_width
+from research.width_probe import half_width, sight
 from trainer.policies import Observation
 from trainer.sim.labels import GRASP_YAW, OFFSET, SIZE
-from trainer.student.model import hand_pose
 
 ROUND_READ = 0.5
 """A read grasp direction shorter than this counts as a round object."""
@@ -38,8 +34,6 @@ class MeasuredWidthPolicy(ComposedPolicy):
                  jump_cm: float) -> None:
         super().__init__(onnx_path, head_path)
         self.gain, self.size, self.high_m, self.jump_mm = gain, size, high_cm / 100, jump_cm * 10
-        spec = self.meta.preprocess
-        self.fx = d455_intrinsics(spec).fx * spec.out_width / spec.crop_width
         self.latched: list[float] = []
 
     def reset(self, env_info: dict) -> None:
@@ -47,19 +41,12 @@ class MeasuredWidthPolicy(ComposedPolicy):
         self.latched = []
 
     def read_facts(self, obs: Observation) -> np.ndarray:
-        state = torch.from_numpy(obs.state[None].astype(np.float32))
-        with torch.no_grad():
-            _, seen, fine = self.eye.perceive(torch.from_numpy(self.stack[None]), state)
-            row = self.eye.label_norm.unnormalise(seen)[0].numpy()
-            site = hand_pose(state)[0, :3].numpy()
+        row, fine = self.perceive(obs)
         if -row[OFFSET][2] >= self.high_m:
-            spec = self.meta.preprocess
-            u, v = (fine[0, 0].numpy() + 1) / 2 * np.array([spec.out_width - 1, spec.out_height - 1])
-            self.latched.append(row_half_width(obs.depth, u, v, self.jump_mm, self.fx))
+            self.latched.append(half_width(obs.depth, fine[0], self.meta.preprocess, self.jump_mm))
         if self.latched and np.linalg.norm(row[GRASP_YAW]) < ROUND_READ:
             radius = float(np.median(self.latched))
-            sight = site[:2] + row[OFFSET][:2] - np.asarray(CAMERA_POS[:2])
-            row[0:2] += self.gain * (radius - row[SIZE][0]) * sight / np.linalg.norm(sight)
+            row[0:2] += self.gain * (radius - row[SIZE][0]) * sight(self.hand(obs)[:2] + row[OFFSET][:2])
             if self.size:
                 row[5:7] = radius
         return row

@@ -21,15 +21,31 @@ import torch
 
 from hil_sim.camera import d455_intrinsics
 from hil_sim.world import CAMERA_POS
+from runtime.preprocess import DepthSpec
 from trainer.dataset import DemoStore
 from trainer.sim.labels import OBJECT_PX, OFFSET, SIZE
 from trainer.student.model import hand_pose
 from trainer.student.readout import NEAR_M, perceive_store
 
 
-def row_half_width(depth_mm: np.ndarray, u: float, v: float, jump_mm: float, fx: float) -> float:
-    """Half the object's width across the sight (m) on image row ``v`` around column ``u``: the run of pixels
-    without a depth step over ``jump_mm`` between neighbours, its angular width and front depth -> radius."""
+def half_width(depth_mm: np.ndarray, point: np.ndarray, spec: DepthSpec, jump_mm: float,
+               rows: float = 0) -> float:
+    """Half the object's width across the sight (m) on the policy image's row through ``point`` (spatial-
+    softmax coordinates, [-1, 1]), ``rows`` pixels lower: the run of pixels without a depth step over
+    ``jump_mm`` between neighbours, its angular width and front depth -> radius."""
+    fx = d455_intrinsics(spec).window(0, 0, spec).fx  # wherever the crop sits
+    u, v = (np.asarray(point) + 1) / 2 * np.array([spec.out_width - 1, spec.out_height - 1])
+    return _row_half_width(depth_mm, u, v + rows, jump_mm, fx)
+
+
+def sight(object_xy: np.ndarray) -> np.ndarray:
+    """Unit horizontal direction from the nominal camera to objects at ``object_xy`` [..., 2]: the policy
+    knows no other camera pose."""
+    ray = object_xy - np.asarray(CAMERA_POS[:2])
+    return ray / np.linalg.norm(ray, axis=-1, keepdims=True)
+
+
+def _row_half_width(depth_mm: np.ndarray, u: float, v: float, jump_mm: float, fx: float) -> float:
     h, w = depth_mm.shape
     row = depth_mm[int(np.clip(round(v), 0, h - 1))].astype(np.float64)
     c = int(np.clip(round(u), 0, w - 1))
@@ -57,24 +73,18 @@ def main() -> None:
     labels = steps.labels_np
     store = DemoStore.open(args.store)
     depth = store.depth("gt", store.n_steps)
-    spec = store.depth_spec
-    fx = d455_intrinsics(spec).fx * spec.out_width / spec.crop_width
     px = labels[:, OBJECT_PX] if args.pixel == "true" else fine[:, 0]
-    u = (px[:, 0] + 1) / 2 * (spec.out_width - 1)
-    v = (px[:, 1] + 1) / 2 * (spec.out_height - 1)
-    measured = np.array([row_half_width(depth[i], u[i], v[i], args.jump_cm * 10, fx) for i in range(len(u))])
+    jump_mm = args.jump_cm * 10
+    measured = np.array([half_width(d, point, store.depth_spec, jump_mm)
+                         for d, point in zip(depth, px, strict=True)])
     kinds = np.repeat(np.asarray(store.kinds), np.diff(store.episode_ends, prepend=0))
     near = np.linalg.norm(labels[:, OFFSET][:, :2], axis=1) < NEAR_M
     above = -labels[:, OFFSET][:, 2] * 100  # the hand's height over the object's centre, cm
     near &= (above >= args.above_cm[0]) & (above < args.above_cm[1])
-    # the sight's horizontal direction to the object from the nominal camera (the policy knows no other)
     with torch.no_grad():  # the grasp site by the Panda's forward kinematics, as the student's graph has it
         site = hand_pose(torch.from_numpy(steps.state_np.astype(np.float32))).numpy()[:, :3]
-    obj = site + labels[:, OFFSET]
-    sight = obj[:, :2] - np.asarray(CAMERA_POS[:2])
-    sight /= np.linalg.norm(sight, axis=1, keepdims=True)
     err = facts[:, OFFSET][:, :2] - labels[:, OFFSET][:, :2]
-    along = (err * sight).sum(1) * 100
+    along = (err * sight(site[:, :2] + labels[:, OFFSET][:, :2])).sum(1) * 100
     shift = measured - facts[:, SIZE][:, 0]
     corrected = along + shift * 100
     report = {}
