@@ -3,12 +3,15 @@
 Runs the policy over the same seeds as ``trainer evaluate`` (10000..) on the given kinds (clean depth) and, at
 the first step it commands the gripper shut, reads the simulator's labels (``trainer.sim.labels``): the object
 centre's offset from the grasp site, and how far the fingers' closing axis is turned from the object's narrow
-axis (0 degrees: the fingers close across the object's narrow side; round kinds have no such axis). Prints the
-medians for the successes and the failures apart, then each failure. With ``--takeover`` the expert
-(``ReactiveExpert``) drives from the policy's first close on: if that grasps, the policy's approach and close
-were good enough and what it did after them lost the episode. With ``--retry`` a scripted reflex opens the
-gripper and lifts the hand 8 cm whenever it has closed on nothing, then gives the policy back: the ceiling of
-teaching the policy to try again after a missed close (its own perception still aims the second try).
+axis (0 degrees: the fingers close across the object's narrow side; round kinds have no such axis), and that
+offset split along the fingers' closing axis and across the pads, and along the camera's line of sight and
+across it (the fingers forgive ~1.5 cm along their closing axis, ~0.7 cm across the pads; the readout errs
+along the sight). Prints the medians for the successes and the failures apart, then each failure. With
+``--takeover`` the expert (``ReactiveExpert``) drives from the policy's first close on: if that grasps, the
+policy's approach and close were good enough and what it did after them lost the episode. With ``--retry`` a
+scripted reflex opens the gripper and lifts the hand 8 cm whenever it has closed on nothing, then gives the
+policy back: the ceiling of teaching the policy to try again after a missed close (its own perception still
+aims the second try).
 
     python research/m0_failures.py oracle:CKPT [--kinds banana pear] [--episodes 40] [--takeover | --retry]
 """
@@ -20,6 +23,7 @@ import argparse
 import numpy as np
 import torch
 
+from research.own_frame_readout import ACROSS, SIGHT
 from trainer.policies import Observation, depth_spec, make_policy
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, OFFSET, frame_labels
@@ -37,16 +41,28 @@ def yaw_error_deg(labels: np.ndarray, state: np.ndarray) -> float:
     return abs(float(np.degrees(np.arctan2(float(sin2), float(cos2)) / 2)))
 
 
+def split_cm(offset: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """A horizontal offset (cm) -> |its part| along the fingers' closing axis, across the pads, along the
+    camera's line of sight and across it."""
+    axis = hand_pose(torch.from_numpy(state[None].astype(np.float32)))[0, 6:8].numpy()
+    axis = axis / np.linalg.norm(axis)
+    pads = np.array([-axis[1], axis[0]])
+    return np.abs([offset[:2] @ axis, offset[:2] @ pads, offset[:2] @ SIGHT, offset[:2] @ ACROSS])
+
+
 class FirstClose:
-    """Wraps a policy and reads the labels (offset in cm, yaw error in degrees) the first time it closes."""
+    """Wraps a policy and reads the labels (offset in cm, yaw error in degrees, ``split_cm``) at its first
+    close."""
+
+    NONE = (np.full(3, np.nan), float("nan"), np.full(4, np.nan))
 
     def __init__(self, policy, env: GraspEnv) -> None:
         self.policy, self.env = policy, env
-        self.close = (np.full(3, np.nan), float("nan"))
+        self.close = self.NONE
 
     def reset(self, info: dict) -> None:
         self.policy.reset(info)
-        self.close = (np.full(3, np.nan), float("nan"))
+        self.close = self.NONE
 
     @property
     def closed(self) -> bool:
@@ -55,8 +71,9 @@ class FirstClose:
     def act(self, observation: Observation) -> np.ndarray:
         action = np.asarray(self.policy.act(observation), np.float32)
         if not self.closed and action[7] > 0:
-            labels = frame_labels(self.env)
-            self.close = (labels[OFFSET] * 100, yaw_error_deg(labels, observation.state))
+            labels, state = frame_labels(self.env), observation.state
+            offset = labels[OFFSET] * 100
+            self.close = (offset, yaw_error_deg(labels, state), split_cm(offset, state))
         return action
 
 
@@ -152,13 +169,16 @@ def main() -> None:
             offsets = np.array([row[3] for row in chosen])
             apart = np.nanmedian(np.linalg.norm(offsets[:, :2], axis=1))
             yaw = np.nanmedian([row[4] for row in chosen])
+            split = np.nanmedian([row[5] for row in chosen], axis=0)
             print(f"{'successes' if success else 'failures'} {len(chosen)}: closes {apart:.2f} cm apart "
-                  f"horizontally, height offset {np.nanmedian(offsets[:, 2]):.2f} cm, fingers {yaw:.0f} deg "
-                  f"off the narrow axis (medians)")
-    for kind, success, steps, offset, yaw in rows:
+                  f"horizontally ({split[0]:.2f} along the closing axis, {split[1]:.2f} across the pads; "
+                  f"{split[2]:.2f} along the sight, {split[3]:.2f} across it), height offset "
+                  f"{np.nanmedian(offsets[:, 2]):.2f} cm, fingers {yaw:.0f} deg off the narrow axis "
+                  "(medians)")
+    for kind, success, steps, offset, yaw, split in rows:
         if not success:
-            print(f"  failed {kind}: {steps} steps, closed at object - hand {np.round(offset, 2)} cm, "
-                  f"{yaw:.0f} deg")
+            print(f"  failed {kind}: {steps} steps, closed at object - hand {np.round(offset, 2)} cm "
+                  f"(closing axis, pads, sight, across it: {np.round(split, 2)}), {yaw:.0f} deg")
 
 
 if __name__ == "__main__":
