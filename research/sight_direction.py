@@ -12,14 +12,14 @@ keeps its own, a round read closes along the sight. No fit: the same readout and
     python -m export.recover models/student.onnx --out DIR     # DIR/student.pt (the readout), DIR/head.pt
     cp models/student.onnx DIR/ && ln -s student.pt DIR/ckpt.pt
     PYTHONPATH=. python research/sight_direction.py DIR/student.onnx DIR/head.pt \
-        --objects can,wheel,persimmon --episodes 90 [--plain] [--out J]
+        --objects can,wheel,persimmon --episodes 90 [--plain] [--true offset] [--out J]
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from research.composed_policy import ComposedPolicy, grasp_rate, parser, report
+from research.composed_policy import GROUPS, ComposedPolicy, grasp_rate, parser, report
 from research.own_frame_readout import SIGHT
 from trainer.policies import Observation
 from trainer.sim.labels import GRASP_YAW
@@ -42,9 +42,12 @@ class SightPolicy(ComposedPolicy):
 def main() -> None:
     p = parser(__doc__, "can,wheel,persimmon", 90)
     p.add_argument("--plain", action="store_true", help="the composed policy as it reads, for the pairing")
+    p.add_argument("--true", nargs="*", default=[], choices=sorted(GROUPS),
+                   help="facts from the simulator, as composed_policy.py takes them")
     args = p.parse_args()
-    policy = (ComposedPolicy if args.plain else SightPolicy)(args.student, args.head)
-    report({"sight": not args.plain, **grasp_rate(policy, args.objects, args.episodes)}, args.out)
+    policy = (ComposedPolicy if args.plain else SightPolicy)(args.student, args.head, tuple(args.true))
+    report({"sight": not args.plain, "true": args.true, **grasp_rate(policy, args.objects, args.episodes)},
+           args.out)
 
 
 if __name__ == "__main__":
