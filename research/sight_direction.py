@@ -3,11 +3,12 @@
 The readout errs along the line of sight (the object's depth extent is what the camera cannot see), and the
 shipped student's fingers close across it: of its failed cans, wheels, lemons and breads the first close is
 1.0-1.1 cm off across the pads and 0.2-0.4 cm along the closing axis (median; ``research/m0_failures.py``),
-while the fingers forgive ~1.5 cm along their closing axis and ~0.7 cm across the pads. M0's head turns the
-fingers to whatever grasp direction it is told, so here the direction it is told is the read one plus the
-line of sight weighted by how round the object reads (1 - the read direction's length): an elongated read
-keeps its own, a round read closes along the sight. No fit: the same readout and head, paired with
-``--plain`` (the composed policy as it reads) on the same seeds.
+while the fingers forgive ~1.5 cm along their closing axis and ~0.7 cm across the pads. M0's head closes
+across the narrow axis it is told, so here the direction it is told is the read one plus the line of sight
+weighted by how round the object reads (1 - the read direction's length): an elongated read keeps its own, a
+round read is to close along the sight. No fit: the same readout and head, paired with ``--plain`` (the
+composed policy as it reads) on the same seeds. Measured: it loses grasps, the true offset given or not
+(``docs/history.md`` 2026-12-01): M0 never saw a grasp direction on an object as wide as it is long.
 
     python -m export.recover models/student.onnx --out DIR     # DIR/student.pt (the readout), DIR/head.pt
     cp models/student.onnx DIR/ && ln -s student.pt DIR/ckpt.pt
