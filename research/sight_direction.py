@@ -6,14 +6,16 @@ shipped student's fingers close across it: of its failed cans, wheels, lemons an
 while the fingers forgive ~1.5 cm along their closing axis and ~0.7 cm across the pads. M0's head closes
 across the narrow axis it is told, so here the direction it is told is the read one plus the line of sight
 weighted by how round the object reads (1 - the read direction's length): an elongated read keeps its own, a
-round read is to close along the sight. No fit: the same readout and head, paired with ``--plain`` (the
-composed policy as it reads) on the same seeds. Measured: it loses grasps, the true offset given or not
-(``docs/history.md`` 2026-12-01): M0 never saw a grasp direction on an object as wide as it is long.
+round read is to close along the sight. No fit: the same readout and head, paired with
+``research/composed_policy.py`` (the composed policy as it reads) on the same seeds and arguments. Measured:
+it loses grasps, the true offset given or not (``docs/history.md`` 2026-12-01): M0 never saw a grasp direction
+on an object as wide as it is long.
 
     python -m export.recover models/student.onnx --out DIR     # DIR/student.pt (the readout), DIR/head.pt
     cp models/student.onnx DIR/ && ln -s student.pt DIR/ckpt.pt
     PYTHONPATH=. python research/sight_direction.py DIR/student.onnx DIR/head.pt \
-        --objects can,wheel,persimmon --episodes 90 [--plain] [--true offset] [--out J]
+        --objects can,wheel,persimmon --episodes 90 [--true offset] [--out J]
+    PYTHONPATH=. python research/composed_policy.py DIR/student.onnx DIR/head.pt ...   # the same, as read
 """
 
 from __future__ import annotations
@@ -42,13 +44,11 @@ class SightPolicy(ComposedPolicy):
 
 def main() -> None:
     p = parser(__doc__, "can,wheel,persimmon", 90)
-    p.add_argument("--plain", action="store_true", help="the composed policy as it reads, for the pairing")
     p.add_argument("--true", nargs="*", default=[], choices=sorted(GROUPS),
                    help="facts from the simulator, as composed_policy.py takes them")
     args = p.parse_args()
-    policy = (ComposedPolicy if args.plain else SightPolicy)(args.student, args.head, tuple(args.true))
-    report({"sight": not args.plain, "true": args.true, **grasp_rate(policy, args.objects, args.episodes)},
-           args.out)
+    policy = SightPolicy(args.student, args.head, tuple(args.true))
+    report({"sight": True, "true": args.true, **grasp_rate(policy, args.objects, args.episodes)}, args.out)
 
 
 if __name__ == "__main__":
