@@ -12,7 +12,7 @@ raw features, which its own states never taught), not the readout's error.
 ``--true`` takes those facts from the simulator instead of the readout: which fact's error costs the grasps.
 
 The ONNX file names the depth crop and frame stack; its checkpoint (``DEPTH_STUDENT.onnx``'s folder,
-``ckpt.pt``) is the perception. Seeds 10000.., as ``trainer evaluate``.
+``ckpt.pt``) is the perception. Seeds ``--seed``.. (10000..), as ``trainer evaluate``.
 """
 
 from __future__ import annotations
@@ -80,15 +80,16 @@ class ComposedPolicy(OraclePolicy):
         return super().act(obs)
 
 
-def grasp_rate(policy: ComposedPolicy, objects: str, episodes: int) -> dict:
-    """``policy``'s success over ``episodes`` of ``objects`` (seeds 10000.., kinds in turn): with its
-    interval, by kind and episode by episode (to pair two policies on the same seeds)."""
+def grasp_rate(policy: ComposedPolicy, objects: str, episodes: int, seed: int = 10_000) -> dict:
+    """``policy``'s success over ``episodes`` of ``objects`` (seeds ``seed``.., kinds in turn, as ``trainer
+    evaluate``): with its interval, by kind and episode by episode (to pair two policies on the same
+    seeds)."""
     kinds = select_kinds(objects)
     env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=policy.meta.preprocess))
     by_kind: dict[str, list[bool]] = {}
     grasped = []
     for i in range(episodes):
-        job = Job(10_000 + i, kinds[i % len(kinds)])
+        job = Job(seed + i, kinds[i % len(kinds)])
         grasped.append(bool(run_episode(env, policy, job).success))
         by_kind.setdefault(job.kind, []).append(grasped[-1])
         print(f"{i + 1}/{episodes}: {sum(grasped)} grasped", flush=True)
@@ -104,6 +105,7 @@ def parser(doc: str, objects: str, episodes: int) -> argparse.ArgumentParser:
     p.add_argument("head", type=Path, help="the privileged head (M0) checkpoint")
     p.add_argument("--objects", default=objects)
     p.add_argument("--episodes", type=int, default=episodes)
+    p.add_argument("--seed", type=int, default=10_000, help="the first episode's seed")
     p.add_argument("--out", type=Path, help="the result as JSON (with each episode's outcome, for pairing)")
     return p
 
