@@ -1,14 +1,16 @@
 """Several depth students' readouts averaged into one set of facts for the privileged head (issue 42).
 
 Two readouts of one lineage that grasp as often (the shipped file's and ``big/fit``'s: 435 and 444 of 540
-unseen) fail on different episodes: of 540 unseen seeds both fail 57, each alone 96-102. If their errors near
+unseen) fail on different episodes: of 540 unseen seeds they fail 105 and 96, both 57. If their errors near
 the object are that independent, their mean reads the object nearer than either. Here the first student's
 ``ComposedPolicy`` (its frames, chunks and head) reads the facts as the mean of every listed readout's.
 
     PYTHONPATH=. python research/ensemble_readout.py FIRST.onnx HEAD_CKPT --also OTHER/ckpt.pt ... \
         [--objects unseen] [--episodes 180] [--seed 10000] [--out R.json]
 
-Seeds ``--seed``.. as ``trainer evaluate``: pair with its JSON's ``failed_seeds``.
+Seeds ``--seed``.. as ``trainer evaluate``, but the start noise is drawn as ``OraclePolicy`` draws it, not as
+the runtime does: pair with another torch run (``composed_policy.py``), not with ``trainer evaluate``'s JSON
+(here the pair grasped 457 of 540 unseen, through the runtime 448: ``pair_export.py``).
 """
 
 from __future__ import annotations
