@@ -55,12 +55,14 @@ class ComposedPolicy(OraclePolicy):
         super().reset(env_info)
         self.frames.reset()
 
-    def perceive(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
-        """The readout's facts (metres) of the current stack and its fine keypoints [K, 2] ([-1, 1])."""
+    def perceive(self, obs: Observation, eye: torch.nn.Module | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The readout's facts (metres) of the current stack and its fine keypoints [K, 2] ([-1, 1]); with
+        ``eye``, another depth student's on the same stack."""
+        eye = self.eye if eye is None else eye
         state = torch.from_numpy(obs.state[None].astype(np.float32))
         with torch.no_grad():
-            _, seen, fine = self.eye.perceive(torch.from_numpy(self.stack[None]), state)
-            return self.eye.label_norm.unnormalise(seen)[0].numpy(), fine[0].numpy()
+            _, seen, fine = eye.perceive(torch.from_numpy(self.stack[None]), state)
+            return eye.label_norm.unnormalise(seen)[0].numpy(), fine[0].numpy()
 
     @staticmethod
     def hand(obs: Observation) -> np.ndarray:

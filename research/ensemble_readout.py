@@ -18,7 +18,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from research.composed_policy import ComposedPolicy, grasp_rate, parser, report
 from trainer.policies import Observation
@@ -34,13 +33,7 @@ class EnsemblePolicy(ComposedPolicy):
         self.others = [checkpoint.load(p).policy() for p in others]
 
     def read_facts(self, obs: Observation) -> np.ndarray:
-        rows = [super().read_facts(obs)]
-        state = torch.from_numpy(obs.state[None].astype(np.float32))
-        stack = torch.from_numpy(self.stack[None])
-        with torch.no_grad():
-            for eye in self.others:
-                _, seen, _ = eye.perceive(stack, state)
-                rows.append(eye.label_norm.unnormalise(seen)[0].numpy())
+        rows = [super().read_facts(obs)] + [self.perceive(obs, eye)[0] for eye in self.others]
         return np.mean(rows, axis=0)
 
 
