@@ -1,0 +1,297 @@
+"""Would finer pixels where the object is read it better? (issue 42: the next lever's ceiling, offline)
+
+The readout reads the object's offset from the hand worst along the camera's line of sight, where the policy
+image (192 x 144, the 400 x 300 crop downsampled 2.08x) shows a 6 cm object about 14 pixels wide. This asks
+whether the stream's native pixels would help before any policy is built on them: one small CNN reads the
+offset (and the object's size) from a 96 x 96 patch of the 848 x 480 stream around the object (~21 cm), the
+same CNN from the same patch as the policy image shows it (each native pixel replaced by the policy pixel
+that ``crop_resize`` sampled for it: the information of 192 x 144, on the same grid). Both also read the
+patch's place in the stream, its median depth and the hand's pose by forward kinematics. The patch centre is
+the object's true pixel with 2 px of noise (a keypoint would place it at deploy time).
+
+``collect`` runs a learner (the shipped student) on some kinds and writes one .npz per episode: both patches,
+the policy frame, joint state, labels (``trainer.sim.labels``) and the camera-to-object direction; it resumes
+where it stopped. ``fit`` trains the CNN on some folders and reports errors on others, near the object split
+along the line of sight and across it, per kind.
+
+    PYTHONPATH=. python research/patch_ceiling.py collect OUT --objects seen,squares,shapes --episodes 150 \
+        --seed 600000 [--learner student:models/student.onnx] [--workers 2]
+    PYTHONPATH=. python research/patch_ceiling.py fit --train DIR ... --test NAME=DIR ... --variant native|low
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from hil_sim.objects import select_kinds
+from runtime.preprocess import DepthSpec, crop_resize, normalise
+from trainer.policies import Observation, depth_spec, make_policy
+from trainer.sim.env import HAND_POSITION, EnvConfig, GraspEnv
+from trainer.sim.labels import OFFSET, SIZE, frame_labels
+from trainer.sim.rollout import in_workers, schedule, start_episode
+from trainer.student import checkpoint
+from trainer.student.model import hand_pose
+
+PATCH = 96
+"""Native stream pixels on a side of the patch (~21 cm at the object's ~0.93 m)."""
+CENTRE_NOISE_PX = 2.0
+STALL_STEPS, STALL_M = 10, 0.002
+"""A learner episode ends once the hand moved less than STALL_M over STALL_STEPS steps (as DAgger's)."""
+NEAR_M = 0.05
+DEPTH_SCALE = 0.001
+"""The simulated stream's metres per unit (uint16 mm)."""
+
+
+def window_indices(n_stream: int, start: int, crop: int, out: int) -> np.ndarray:
+    """For each stream pixel along one axis, the policy pixel ``crop_resize`` sampled nearest to it."""
+    scale = crop / out
+    return np.clip(np.rint((np.arange(n_stream) - start + 0.5) / scale - 0.5), 0, out - 1).astype(int)
+
+
+def patches(stream: np.ndarray, spec, window: tuple[int, int], centre: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """The native patch around ``centre`` (u, v stream pixels) and the same patch as the policy frame shows
+    it; outside the stream 0 (no data)."""
+    top, left = window
+    policy = crop_resize(stream, spec, window)
+    rows = window_indices(stream.shape[0], top, spec.crop_height, spec.out_height)
+    cols = window_indices(stream.shape[1], left, spec.crop_width, spec.out_width)
+    u0, v0 = int(round(centre[0])) - PATCH // 2, int(round(centre[1])) - PATCH // 2
+    native, low = np.zeros((PATCH, PATCH), np.uint16), np.zeros((PATCH, PATCH), np.uint16)
+    r = np.arange(v0, v0 + PATCH)
+    c = np.arange(u0, u0 + PATCH)
+    rin, cin = (r >= 0) & (r < stream.shape[0]), (c >= 0) & (c < stream.shape[1])
+    native[np.ix_(rin, cin)] = stream[np.ix_(r[rin], c[cin])]
+    low[np.ix_(rin, cin)] = policy[np.ix_(rows[r[rin]], cols[c[cin]])]
+    return native, low
+
+
+def stream_pixel(world, point: np.ndarray) -> np.ndarray:
+    extr = world.camera_extrinsics()
+    x, y, z = extr[:3, :3].T @ (point - extr[:3, 3])
+    return np.array([world.intr.fx * x / z + world.intr.cx, world.intr.fy * y / z + world.intr.cy])
+
+
+def episode(env: GraspEnv, learner, job) -> dict:
+    info = start_episode(env, learner, job)
+    world, rng = env.world, np.random.default_rng([job.seed, 0x9A7C])
+    rows: dict[str, list] = {k: [] for k in ("native", "low", "centre", "depth", "state", "labels", "sight")}
+    hands = []
+    while True:
+        obs = env.observation()
+        obj, _ = world.object_pose()
+        centre = stream_pixel(world, obj) + rng.normal(0, CENTRE_NOISE_PX, 2)
+        native, low = patches(world.render_depth(), env.spec, world.episode.crop_window, centre)
+        to_object = obj - world.camera_extrinsics()[:3, 3]
+        for key, value in (("native", native), ("low", low), ("centre", centre), ("depth", info["depth"]),
+                           ("state", info["state"]), ("labels", frame_labels(env)),
+                           ("sight", to_object / np.linalg.norm(to_object))):
+            rows[key].append(value)
+        hands.append(obs[HAND_POSITION])
+        action = np.asarray(learner.act(Observation(obs, info["depth"], info["state"])), np.float32)
+        _, _, terminated, truncated, info = env.step(action)
+        stalled = len(hands) >= STALL_STEPS and np.linalg.norm(hands[-1] - hands[-STALL_STEPS]) < STALL_M
+        if terminated or truncated or stalled:
+            out = {k: np.stack(v) for k, v in rows.items()}
+            return out | {"kind": job.kind, "seed": job.seed, "success": bool(info.get("success", False))}
+
+
+_WORKER: dict = {}
+
+
+def _init(kinds: tuple[str, ...], learner: str) -> None:
+    env = GraspEnv(EnvConfig(objects=kinds, depth=depth_spec(learner)))
+    _WORKER.update(env=env, learner=make_policy(learner))
+
+
+def _work(job) -> dict:
+    return episode(_WORKER["env"], _WORKER["learner"], job)
+
+
+def collect(out: Path, kinds: tuple[str, ...], episodes: int, seed: int, learner: str, workers: int) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = [j for j in schedule(kinds, seed, episodes) if not (out / f"{j.seed}.npz").exists()]
+    wins = 0
+    episodes_done = in_workers(_init, (kinds, learner), _work, jobs, workers, _WORKER)
+    for ep in tqdm(episodes_done, total=len(jobs), desc=f"collect {out.name}", unit="ep"):
+        np.savez_compressed(out / f"{ep['seed']}.npz", **ep)
+        wins += ep["success"]
+    print(f"{out}: {wins} of {len(jobs)} new episodes grasped")
+
+
+def load(dirs: list[str]) -> dict:
+    eps = [np.load(f) for d in dirs for f in sorted(Path(d).glob("*.npz"))]
+    if not eps:
+        raise SystemExit(f"no episodes in {dirs}")
+    data = {k: np.concatenate([e[k] for e in eps]) for k in ("native", "low", "centre", "state", "labels",
+                                                             "sight")}
+    data["depth"] = np.concatenate([e["depth"] for e in eps])
+    data["episode"] = np.repeat(np.arange(len(eps)), [len(e["state"]) for e in eps])
+    data["kind"] = np.repeat([str(e["kind"]) for e in eps], [len(e["state"]) for e in eps])
+    with torch.no_grad():
+        data["hand"] = hand_pose(torch.from_numpy(data["state"].astype(np.float32))).numpy()
+    return data
+
+
+def tensors(data: dict, variant: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Patch (depth about its median, dm; no data 0), scalars (centre, median depth, hand pose), targets
+    (offset, size; cm)."""
+    mm = data[variant].astype(np.float32)
+    valid = mm > 0
+    ref = np.array([np.median(p[v]) if v.any() else 0.0 for p, v in zip(mm, valid, strict=True)], np.float32)
+    img = np.where(valid, (mm - ref[:, None, None]) / 100.0, 0.0).astype(np.float32)
+    scalars = np.concatenate([data["centre"] / 500.0, ref[:, None] / 1000.0, data["hand"]], 1)
+    y = np.concatenate([data["labels"][:, OFFSET], data["labels"][:, SIZE]], 1) * 100
+    return (torch.from_numpy(img[:, None]), torch.from_numpy(scalars.astype(np.float32)),
+            torch.from_numpy(y.astype(np.float32)))
+
+
+class PatchNet(nn.Module):
+    """Four stride-2 convolutions (96 -> 6), flattened so that where a thing is stays, then an MLP."""
+
+    def __init__(self, n_scalars: int, n_out: int) -> None:
+        super().__init__()
+        chans, layers = (1, 16, 32, 64, 64), []
+        for i in range(4):
+            k = 5 if i == 0 else 3
+            layers += [nn.Conv2d(chans[i], chans[i + 1], k, 2, k // 2), nn.GroupNorm(8, chans[i + 1]),
+                       nn.ReLU()]
+        self.conv = nn.Sequential(*layers)
+        self.mlp = nn.Sequential(nn.Linear(64 * 36 + n_scalars, 256), nn.ReLU(), nn.Linear(256, 256),
+                                 nn.ReLU(), nn.Linear(256, n_out))
+
+    def forward(self, img: torch.Tensor, scalars: torch.Tensor) -> torch.Tensor:
+        return self.mlp(torch.cat([self.conv(img).flatten(1), scalars], 1))
+
+
+def fit(train: dict, variant: str, steps: int, batch: int, seed: int
+        ) -> tuple[nn.Module, torch.Tensor, torch.Tensor]:
+    torch.manual_seed(seed)
+    img, s, y = tensors(train, variant)
+    s_mean, s_std = s.mean(0), s.std(0) + 1e-6
+    net = PatchNet(s.shape[1], y.shape[1])
+    opt = torch.optim.AdamW(net.parameters(), lr=1e-3, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, 1e-3, total_steps=steps)
+    bar = tqdm(range(steps), desc=f"fit {variant}", mininterval=10)
+    for _ in bar:
+        idx = torch.randint(0, len(y), (batch,))
+        loss = nn.functional.smooth_l1_loss(net(img[idx], (s[idx] - s_mean) / s_std), y[idx])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        bar.set_postfix(loss=f"{loss.item():.3f}", refresh=False)
+    return net, s_mean, s_std
+
+
+def predict(net: nn.Module, s_mean: torch.Tensor, s_std: torch.Tensor, data: dict, variant: str
+            ) -> np.ndarray:
+    """The CNN's errors [N, 6] (offset, size; cm)."""
+    img, s, y = tensors(data, variant)
+    with torch.no_grad():
+        pred = torch.cat([net(img[i:i + 512], (s[i:i + 512] - s_mean) / s_std)
+                          for i in range(0, len(y), 512)])
+    return (pred - y).numpy()
+
+
+def readout_errors(ckpt: Path, data: dict) -> np.ndarray:
+    """A depth student's own readout's errors [N, 6] on the same frames (its 3-frame stacks of the policy
+    frames, as ``LabelledSteps`` stacks them)."""
+    net = checkpoint.load(ckpt).policy().eval()
+    spec, horizon = DepthSpec(), net.config.obs_horizon  # normalise reads only its metric range
+    start = np.searchsorted(data["episode"], data["episode"])  # each frame's episode's first row
+    stacks = np.maximum(np.arange(len(start))[:, None] - np.arange(horizon - 1, -1, -1), start[:, None])
+    facts = []
+    with torch.no_grad():
+        for i in range(0, len(start), 256):
+            rows = stacks[i:i + 256]
+            depth = torch.from_numpy(normalise(data["depth"][rows], DEPTH_SCALE, spec))
+            _, read, _ = net.perceive(depth, torch.from_numpy(data["state"][i:i + 256].astype(np.float32)))
+            facts.append(net.label_norm.unnormalise(read).numpy())
+    facts = np.concatenate(facts)
+    cols = np.r_[OFFSET, SIZE]
+    return (facts[:, cols] - data["labels"][:, cols]) * 100
+
+
+def summarise(diff: np.ndarray, data: dict) -> dict:
+    """Error medians (cm): all frames; near the object (hand within 5 cm horizontally) the offset, its
+    horizontal part, the parts along the camera's line of sight and across it, the median episode's mean
+    horizontal error (the bias a closed loop acts on) and the mean error of the object's read width."""
+    off, size, sight = diff[:, :3], diff[:, 3:], data["sight"]
+    near = np.linalg.norm(data["labels"][:, OFFSET][:, :2], axis=1) < NEAR_M
+    along = np.sum(off * sight, 1)
+    across = np.linalg.norm(off - along[:, None] * sight, axis=1)
+
+    def one(mask: np.ndarray) -> dict:
+        m = mask & near
+        episodes = np.unique(data["episode"][m])
+        bias = [np.linalg.norm(off[m & (data["episode"] == e), :2].mean(0)) for e in episodes]
+        return {"frames": int(mask.sum()), "near": int(m.sum()),
+                "median": _r(np.median(np.linalg.norm(off[mask], axis=1))),
+                "near_median": _r(np.median(np.linalg.norm(off[m], axis=1))),
+                "near_xy_median": _r(np.median(np.linalg.norm(off[m, :2], axis=1))),
+                "near_along_sight": _r(np.median(np.abs(along[m]))),
+                "near_across_sight": _r(np.median(across[m])),
+                "near_xy_bias_median": _r(np.median(bias)),
+                "near_narrow_width_error": _r(np.mean(2 * size[m, 0]))}
+
+    kinds = sorted(set(data["kind"]))
+    return {"all": one(np.ones(len(diff), bool))} | {k: one(data["kind"] == k) for k in kinds}
+
+
+def _r(x: float) -> float:
+    return round(float(x), 3)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = p.add_subparsers(dest="cmd", required=True)
+    c = sub.add_parser("collect", help="learner episodes with both patches, one .npz each")
+    c.add_argument("out", type=Path)
+    c.add_argument("--objects", default="seen")
+    c.add_argument("--episodes", type=int, default=100)
+    c.add_argument("--seed", type=int, default=600000)
+    c.add_argument("--learner", default="student:models/student.onnx")
+    c.add_argument("--workers", type=int, default=2)
+    f = sub.add_parser("fit", help="the CNN on --train, its errors (cm) on each --test")
+    f.add_argument("--train", nargs="+", help="folders to fit on (not for --variant readout)")
+    f.add_argument("--test", nargs="+", required=True, help="NAME=DIR")
+    f.add_argument("--variant", choices=("native", "low", "readout"), required=True,
+                   help="the CNN on native or policy pixels; readout: --ckpt's own readout, no fit")
+    f.add_argument("--ckpt", type=Path, help="a depth student checkpoint (--variant readout)")
+    f.add_argument("--steps", type=int, default=4000)
+    f.add_argument("--batch", type=int, default=64)
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--out", type=Path, help="JSON report here too")
+    args = p.parse_args()
+    if args.cmd == "collect":
+        collect(args.out, select_kinds(args.objects), args.episodes, args.seed, args.learner, args.workers)
+        return
+    torch.set_num_threads(1)
+    tests = [(name, load([d])) for name, d in (t.split("=", 1) for t in args.test)]
+    if args.variant == "readout":
+        result = {"variant": f"readout {args.ckpt}"}
+        result |= {name: summarise(readout_errors(args.ckpt, data), data) for name, data in tests}
+    else:
+        start = time.time()
+        net, s_mean, s_std = fit(load(args.train), args.variant, args.steps, args.batch, args.seed)
+        result = {"variant": args.variant, "steps": args.steps, "batch": args.batch,
+                  "fit_s": round(time.time() - start)}
+        result |= {name: summarise(predict(net, s_mean, s_std, data, args.variant), data)
+                   for name, data in tests}
+    text = json.dumps(result, indent=1)
+    print(text)
+    if args.out:
+        args.out.write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
