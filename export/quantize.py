@@ -53,18 +53,25 @@ def calibration_feeds(meta: PolicyMetadata, ckpt: Checkpoint, count: int = 32) -
             for d, s in pairs]
 
 
-def quantize_if_worth_it(model: onnx.ModelProto, ckpt: Checkpoint,
-                         threads: int = 2) -> tuple[onnx.ModelProto, dict]:
-    meta = read_metadata(model)
-    feeds = calibration_feeds(meta, ckpt)
-    encoder_convs = [n.name for n in model.graph.node if n.op_type == "Conv" and "/encoder/" in n.name]
+def encoder_convs(model: onnx.ModelProto) -> list[str]:
+    """Names of the depth encoder's convolutions: every Conv outside the diffusion head (a plain student's sit
+    under ``/encoder/``, a perception student's under ``/perception/``)."""
+    return [n.name for n in model.graph.node if n.op_type == "Conv" and "/head/" not in n.name]
+
+
+def quantize_if_worth_it(model: onnx.ModelProto, ckpt: Checkpoint | None, threads: int = 2,
+                         feeds: list[dict[str, np.ndarray]] | None = None) -> tuple[onnx.ModelProto, dict]:
+    """``model`` with its encoder in int8 if that pays off (else as it was) and the report; calibrated on
+    ``feeds`` when given (e.g. frames of a recipe's stores), else on ``ckpt``'s demos."""
+    feeds = feeds or calibration_feeds(read_metadata(model), ckpt)
+    convs = encoder_convs(model)
     with tempfile.TemporaryDirectory() as tmp:
         fp32, int8 = Path(tmp) / "fp32.onnx", Path(tmp) / "int8.onnx"
         onnx.save(model, fp32)
         quantize_static(fp32, int8, _Frames(feeds), quant_format=QuantFormat.QDQ, per_channel=True,
                         activation_type=QuantType.QInt8, weight_type=QuantType.QInt8,
-                        nodes_to_quantize=encoder_convs)
-        report = compare(fp32, int8, feeds, threads)
+                        nodes_to_quantize=convs)
+        report = compare(fp32, int8, feeds, threads) | {"quantised_convs": len(convs)}
         quantised = onnx.load(str(int8))
     keep = report["speedup"] >= MIN_SPEEDUP and report["max_action_err"] <= MAX_ACTION_ERR
     report["kept"] = keep
@@ -81,5 +88,5 @@ def compare(fp32: Path, int8: Path, feeds: list[dict[str, np.ndarray]], threads:
     err = max(float(np.abs(a.run(None, f)[0] - b.run(None, f)[0]).max()) for f in feeds)
     times = timed_side_by_side([lambda: a.run(None, feeds[0]), lambda: b.run(None, feeds[0])], 30)
     fp32_ms, int8_ms = (statistics.median(t) for t in times)
-    return {"quantised_convs": "encoder", "max_action_err": err, "fp32_ms": fp32_ms, "int8_ms": int8_ms,
+    return {"max_action_err": err, "fp32_ms": fp32_ms, "int8_ms": int8_ms,
             "speedup": fp32_ms / int8_ms}
