@@ -17,6 +17,8 @@ along the line of sight and across it, per kind.
     PYTHONPATH=. python research/patch_ceiling.py collect OUT --objects seen,squares,shapes --episodes 150 \
         --seed 600000 [--learner student:models/student.onnx] [--workers 2]
     PYTHONPATH=. python research/patch_ceiling.py fit --train DIR ... --test NAME=DIR ... --variant native|low
+    PYTHONPATH=. python research/patch_ceiling.py fit --test NAME=DIR ... --variant readout --ckpt CKPT
+        # a depth student's own readout on the same frames: the bar the CNN is read against
 """
 
 from __future__ import annotations
