@@ -20,9 +20,7 @@ import onnx
 
 from export.quantize import quantize_if_worth_it
 from runtime.preprocess import DepthSpec, normalise
-
-DEPTH_SCALE = 0.001
-"""The simulated stream's metres per unit (uint16 mm)."""
+from trainer.dataset import DEPTH_SCALE
 
 
 def feeds(folder: Path, count: int, noise_shape: tuple[int, ...], seed: int = 0

@@ -35,21 +35,21 @@ from tqdm import tqdm
 
 from hil_sim.objects import select_kinds
 from runtime.preprocess import DepthSpec, crop_resize, normalise
+from trainer.dataset import DEPTH_SCALE
 from trainer.policies import Observation, depth_spec, make_policy
 from trainer.sim.env import HAND_POSITION, EnvConfig, GraspEnv
 from trainer.sim.labels import OFFSET, SIZE, frame_labels
 from trainer.sim.rollout import in_workers, schedule, start_episode
 from trainer.student import checkpoint
+from trainer.student.dagger import RoundSpec
 from trainer.student.model import hand_pose
 
 PATCH = 96
 """Native stream pixels on a side of the patch (~21 cm at the object's ~0.93 m)."""
 CENTRE_NOISE_PX = 2.0
-STALL_STEPS, STALL_M = 10, 0.002
-"""A learner episode ends once the hand moved less than STALL_M over STALL_STEPS steps (as DAgger's)."""
 NEAR_M = 0.05
-DEPTH_SCALE = 0.001
-"""The simulated stream's metres per unit (uint16 mm)."""
+STALL = RoundSpec()
+"""A learner episode ends once the hand stalls, as a DAgger round's does."""
 
 
 def window_indices(n_stream: int, start: int, crop: int, out: int) -> np.ndarray:
@@ -100,7 +100,8 @@ def episode(env: GraspEnv, learner, job) -> dict:
         hands.append(obs[HAND_POSITION])
         action = np.asarray(learner.act(Observation(obs, info["depth"], info["state"])), np.float32)
         _, _, terminated, truncated, info = env.step(action)
-        stalled = len(hands) >= STALL_STEPS and np.linalg.norm(hands[-1] - hands[-STALL_STEPS]) < STALL_M
+        n = STALL.stall_steps
+        stalled = len(hands) >= n and np.linalg.norm(hands[-1] - hands[-n]) < STALL.stall_m
         if terminated or truncated or stalled:
             out = {k: np.stack(v) for k, v in rows.items()}
             return out | {"kind": job.kind, "seed": job.seed, "success": bool(info.get("success", False))}
