@@ -71,6 +71,27 @@ def probe_widths(store: Path, x: np.ndarray, rows: tuple[int, ...], cache: Path)
     return out
 
 
+def fit(mlp: torch.nn.Module, x: torch.Tensor, y: torch.Tensor, steps: int, lr: float, batch: int,
+        weights: torch.Tensor | None = None, seed: int = 0, cosine: bool = False) -> torch.nn.Module:
+    """``mlp`` fitted in place to ``y`` from cached features ``x`` (batches drawn by ``weights`` when given;
+    ``cosine``: the learning rate annealed to zero over the steps); returned in eval mode."""
+    torch.manual_seed(seed)
+    opt = torch.optim.AdamW(mlp.parameters(), lr=lr, weight_decay=1e-4)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps) if cosine else None
+    for step in range(steps):
+        index = (torch.randint(len(x), (batch,)) if weights is None
+                 else torch.multinomial(weights, batch, replacement=True))
+        loss = torch.nn.functional.mse_loss(mlp(x[index]), y[index])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        if sched is not None:
+            sched.step()
+        if step % 500 == 0:
+            print(f"seed {seed} step {step}: loss {loss.item():.4f}", flush=True)
+    return mlp.eval()
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("checkpoint", type=Path)
@@ -104,17 +125,7 @@ def main() -> None:
     x = torch.from_numpy(np.concatenate([t["x"] for t in train]))
     y = norm.normalise(torch.from_numpy(np.concatenate([t["labels"] for t in train])))
     weights = batch_weights(np.concatenate([t["kinds"] for t in train]), tuple(args.shares))
-    torch.manual_seed(0)
-    opt = torch.optim.AdamW(mlp.parameters(), lr=args.lr, weight_decay=1e-4)
-    for step in range(args.steps):
-        index = (torch.randint(len(x), (args.batch,)) if weights is None
-                 else torch.multinomial(weights, args.batch, replacement=True))
-        loss = torch.nn.functional.mse_loss(mlp(x[index]), y[index])
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        if step % 500 == 0:
-            print(f"step {step}: loss {loss.item():.4f}", flush=True)
+    fit(mlp, x, y, args.steps, args.lr, args.batch, weights)
     report = {}
     for s in args.test:
         t = features(args.checkpoint, s, args.out / f"{s.stem}.npz")

@@ -25,27 +25,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from research.frozen_readout import features
+from research.frozen_readout import features, fit
 from trainer.dataset import DemoStore
 from trainer.student import checkpoint
 from trainer.student.readout import by_kind, errors, offset_errors
-
-
-def fit_mlp(mlp: torch.nn.Module, x: torch.Tensor, y: torch.Tensor, steps: int, lr: float, batch: int,
-            seed: int) -> torch.nn.Module:
-    torch.manual_seed(seed)
-    opt = torch.optim.AdamW(mlp.parameters(), lr=lr, weight_decay=1e-4)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
-    for step in range(steps):
-        index = torch.randint(len(x), (batch,))
-        loss = torch.nn.functional.mse_loss(mlp(x[index]), y[index])
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-        if step % 1000 == 0:
-            print(f"mlp {seed} step {step}: loss {loss.item():.4f}", flush=True)
-    return mlp.eval()
 
 
 def fresh_like(mlp: torch.nn.Module, seed: int) -> torch.nn.Module:
@@ -89,7 +72,7 @@ def main() -> None:
     mlps = []
     for i in range(args.mlps):
         start = copy.deepcopy(shipped) if args.from_shipped else fresh_like(shipped, i)
-        mlps.append(fit_mlp(start, x, y, args.steps, args.lr, args.batch, i))
+        mlps.append(fit(start, x, y, args.steps, args.lr, args.batch, seed=i, cosine=True))
     report = {}
     for s in args.test:
         t = features(args.checkpoint, s, cache / f"{s.stem}.npz")
