@@ -14,7 +14,7 @@ and the expert read an object's position as its centre and its z axis as up.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import mujoco
@@ -173,7 +173,7 @@ def _training_kind(name: str, geom: Geom, volume: float, rng: np.random.Generato
 
 
 def _rounded(geom: Geom) -> Geom:
-    return Geom(geom.type, tuple(round(float(v), 4) for v in geom.size),
+    return Geom(geom.type, tuple(round(float(v), 4) for v in geom.size), mesh=geom.mesh,
                 fromto=tuple(round(float(v), 4) for v in geom.fromto))
 
 
@@ -187,6 +187,53 @@ _SQUARE_RNG = np.random.default_rng(SQUARE_SEED)
 SQUARES: tuple[ObjectKind, ...] = tuple(_square(i, _SQUARE_RNG) for i in range(SQUARE_COUNT))
 """Square training boxes (group ``squares``), apart from ``SHAPES`` so that ``train`` stays what the
 lineages before them were trained on."""
+SUPERQUADRIC_COUNT, SUPERQUADRIC_SEED = 24, 5
+
+
+def _superquadric_vertices(half: tuple[float, float, float], e_up: float, e_around: float,
+                           rings: int = 13, around: int = 24) -> tuple[float, ...]:
+    """Surface points of a superquadric of half extents ``half``: ``e_up`` shapes its side view (0.2
+    flat-topped as a cylinder, 1 round as an ellipsoid), ``e_around`` its plan (0.2 square, 1 elliptic)."""
+    up, turn = np.meshgrid(np.linspace(-np.pi / 2, np.pi / 2, rings),
+                           np.linspace(-np.pi, np.pi, around, endpoint=False))
+    ring = _signed_power(np.cos(up), e_up)
+    pts = np.stack([half[0] * ring * _signed_power(np.cos(turn), e_around),
+                    half[1] * ring * _signed_power(np.sin(turn), e_around),
+                    half[2] * _signed_power(np.sin(up), e_up)], axis=-1).reshape(-1, 3)
+    return tuple(round(float(v), 5) for v in np.unique(pts.round(5), axis=0).ravel())
+
+
+def _signed_power(t: np.ndarray, e: float) -> np.ndarray:
+    return np.sign(t) * np.abs(t) ** e
+
+
+def _superquadric_volume(half: tuple[float, float, float], e_up: float, e_around: float) -> float:
+    """Jaklic, Leonardis and Solina, Segmentation and Recovery of Superquadrics (2000), eq. 2.60."""
+    def beta(x: float, y: float) -> float:
+        return math.gamma(x) * math.gamma(y) / math.gamma(x + y)
+
+    return 2 * math.prod(half) * e_up * e_around * beta(e_up / 2 + 1, e_up) * beta(e_around / 2, e_around / 2)
+
+
+def _superquadric(i: int, rng: np.random.Generator) -> ObjectKind:
+    """Training kind ``superquadric<i>``: one convex superquadric mesh between a box, a cylinder and an
+    ellipsoid, 4-7.2 cm across its narrow side (y) and up to 13 cm tall: a continuous family of forms and
+    sizes, so that the readout must measure an object rather than recall one of the few it was shown. Only a
+    flat-bottomed one (``e_up`` < 0.4) may be taller than it is narrow: a rounder one would rock."""
+    narrow = rng.uniform(MIN_HALF, 0.036)
+    e_up, e_around = rng.uniform(0.2, 1.0), rng.uniform(0.2, 1.0)
+    tallest = 2 * narrow if e_up < 0.4 else 0.95 * narrow
+    half = (rng.uniform(narrow, 0.06), narrow, rng.uniform(MIN_HALF, min(0.065, tallest)))
+    name = f"superquadric{i:02d}"
+    kind = _training_kind(name, Geom("mesh", mesh=name), _superquadric_volume(half, e_up, e_around), rng)
+    return replace(kind, mesh_vertices=_superquadric_vertices(half, e_up, e_around))
+
+
+_SUPERQUADRIC_RNG = np.random.default_rng(SUPERQUADRIC_SEED)
+SUPERQUADRICS: tuple[ObjectKind, ...] = tuple(_superquadric(i, _SUPERQUADRIC_RNG)
+                                              for i in range(SUPERQUADRIC_COUNT))
+"""Superquadric training kinds (group ``superquadrics``): forms between and beyond the training shapes',
+upright round ones among them, at sizes drawn anew for each kind."""
 _NARROW_CM = {"apple": 7.2, "pear": 6.6, "peach": 6.4, "banana": 3.6, "cube": 5.0, "block": 5.0}
 _SCALE_RNG = np.random.default_rng(SQUARE_SEED + 3)
 SCALED: tuple[ObjectKind, ...] = tuple(
@@ -194,14 +241,15 @@ SCALED: tuple[ObjectKind, ...] = tuple(
     for span in ((0.75, 0.9), (1.1, min(1.3, 7.4 / _NARROW_CM[k.name]))) if span[0] < span[1])
 """The seen kinds smaller and larger (group ``scaled``): known shapes at sizes the readout must read, not
 recall (``_NARROW_CM``: each kind's narrow side, so that a larger copy still fits the 8 cm stroke)."""
-KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN + SHAPES + SQUARES + SCALED}
+KINDS: dict[str, ObjectKind] = {k.name: k for k in BUILTIN + SHAPES + SQUARES + SCALED + SUPERQUADRICS}
 SEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if k.seen)
 UNSEEN: tuple[str, ...] = tuple(k.name for k in BUILTIN if not k.seen)
 GROUPS: dict[str, tuple[str, ...]] = {"seen": SEEN, "unseen": UNSEEN, "all": SEEN + UNSEEN,
                                       "shapes": tuple(k.name for k in SHAPES),
                                       "train": SEEN + tuple(k.name for k in SHAPES),
                                       "squares": tuple(k.name for k in SQUARES),
-                                      "scaled": tuple(k.name for k in SCALED)}
+                                      "scaled": tuple(k.name for k in SCALED),
+                                      "superquadrics": tuple(k.name for k in SUPERQUADRICS)}
 OBJECTS_HELP = f"kinds, object files and groups ({', '.join(GROUPS)}), comma-separated"
 """The ``--objects`` help of every command (each resolves it with ``select_kinds``)."""
 _MESH_SUFFIXES = (".stl", ".obj")

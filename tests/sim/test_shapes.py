@@ -9,7 +9,7 @@ import pytest
 from hil_sim import objects
 from hil_sim.world import TABLE_Z, World
 
-TRAINING = objects.GROUPS["shapes"] + objects.GROUPS["squares"]
+TRAINING = objects.GROUPS["shapes"] + objects.GROUPS["squares"] + objects.GROUPS["superquadrics"]
 
 
 @pytest.fixture(scope="module")
@@ -56,6 +56,22 @@ def test_scaled_kinds_are_the_seen_kinds_scaled_and_kept_out_of_train() -> None:
             np.testing.assert_allclose(geom.pos, np.array(original.pos) * scale, atol=1e-4)
     assert {k.name.partition("_x")[0] for k in objects.SCALED} == set(objects.SEEN)
     assert not set(objects.GROUPS["scaled"]) & set(objects.GROUPS["train"] + objects.GROUPS["all"])
+
+
+def test_superquadrics_are_convex_meshes_of_drawn_forms_kept_out_of_train() -> None:
+    """Each is one mesh whose points lie on its superquadric's surface, within the half extents drawn."""
+    corners = []  # how far each form reaches into its box's corners: 2 a box's, 1.41 an ellipse's (in plan)
+    for kind in objects.SUPERQUADRICS:
+        (geom,) = kind.geoms
+        assert geom.type == "mesh" and geom.mesh == kind.name, kind.name
+        pts = np.array(kind.mesh_vertices).reshape(-1, 3)
+        half = np.abs(pts).max(axis=0)
+        assert half[0] >= half[1] >= objects.MIN_HALF - 1e-6, "y is the narrow side"
+        corners.append((np.abs(pts[:, :2]) / half[:2]).sum(axis=1).max())
+    assert min(corners) < 1.5 and max(corners) > 1.8, "the family spans square and round plans, not one form"
+    names = objects.GROUPS["superquadrics"]
+    assert len(set(names)) == objects.SUPERQUADRIC_COUNT
+    assert not set(names) & set(objects.GROUPS["train"] + objects.GROUPS["all"])
 
 
 @pytest.mark.parametrize("kind", TRAINING)
