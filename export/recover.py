@@ -10,10 +10,13 @@ seeded example inputs (``export.reference``) or nothing is written.
 
 A composed student (``trainer student compose``) also gives back its privileged head (M0) exactly: the head's
 weights and normalisers are the composed student's, less the perception. Writes ``OUT/student.pt`` and, for a
-composed file, ``OUT/head.pt``:
+composed file, ``OUT/head.pt``; a file of several perceptions (``compose --also``) gives each as a composed
+student of one, the first as ``student.pt``, its partners as ``partner1.pt``, ...:
 
     python -m export.recover models/student.onnx --out DIR
     python -m trainer student recipe --init DIR/student.pt --no-head-features --head DIR/head.pt ...
+    python -m trainer student compose --perception DIR/student.pt --also DIR/partner1.pt --head DIR/head.pt \
+        --out C.pt
 """
 
 from __future__ import annotations
@@ -70,7 +73,7 @@ def recover(path: Path) -> tuple[dict[str, Checkpoint], float]:
     composed = student.info.data.get("composed")
     if composed is None:
         return {"student": student}, error
-    return {"student": student, "head": _head(student, composed["head"])}, error
+    return {**_perceptions(student), "head": _head(student, composed["head"])}, error
 
 
 def _load(path: Path) -> onnx.ModelProto:
@@ -155,10 +158,35 @@ def _student(path: Path, meta: PolicyMetadata, config: StudentConfig, state: dic
                       step=int(meta.training_data.get("train_step", 0)))
 
 
+def _perceptions(student: Checkpoint) -> dict[str, Checkpoint]:
+    """``{"student": ...}`` for a composed student of one perception; for one of several, each perception
+    with the head as a student of one (``student``, ``partner1``, ...), which compose back into it."""
+    if student.config.perceptions == 1:
+        return {"student": student}
+    config = dataclasses.replace(student.config, perceptions=1)
+    composed = {k: v for k, v in student.info.data["composed"].items() if k != "partners"}
+    records = [composed["perception"], *student.info.data["composed"]["partners"]]
+    out = {}
+    for i, record in enumerate(records):
+        own = "perception." if i == 0 else f"partners.{i - 1}."
+        state = _head_weights(student)
+        state.update({"perception." + k.removeprefix(own): v.clone() for k, v in student.ema.items()
+                      if k.startswith(own)})
+        data = {**student.info.data, "composed": {**composed, "perception": record}}
+        out["student" if i == 0 else f"partner{i}"] = Checkpoint(
+            config, dataclasses.replace(student.info, data=data), ema=state,
+            model={k: v.clone() for k, v in state.items()}, step=student.step)
+    return out
+
+
+def _head_weights(student: Checkpoint) -> dict[str, torch.Tensor]:
+    return {k: v.clone() for k, v in student.ema.items() if not k.startswith(("perception.", "partners."))}
+
+
 def _head(student: Checkpoint, record: dict) -> Checkpoint:
-    """The privileged student a composed one took its head from: every tensor but the perception's."""
-    config = dataclasses.replace(student.config, perception="privileged", head_features=True)
-    state = {k: v.clone() for k, v in student.ema.items() if not k.startswith("perception.")}
+    """The privileged student a composed one took its head from: every tensor but the perceptions'."""
+    config = dataclasses.replace(student.config, perception="privileged", head_features=True, perceptions=1)
+    state = _head_weights(student)
     info = dataclasses.replace(student.info,
                                data={**record, "recovered_from": student.info.data["recovered_from"]})
     return Checkpoint(config, info, ema=state, model={k: v.clone() for k, v in state.items()},

@@ -19,27 +19,38 @@ TINY = ["--width", "8", "--head-dims", "16", "32", "--state-features", "16", "--
 """A small student of the recipe's other settings, so that the recipe can go on from it."""
 
 
-@pytest.fixture(scope="module")
-def composed_file(tmp_path_factory):
-    """A composed student exported to ONNX, and the two checkpoints it was composed of. Every tensor is drawn
-    at random, as a fit leaves them, but the norms' scales and shifts, which stay ones and zeros as at
-    initialisation: equal initializers that the exporter merges into one."""
-    from export.__main__ import main as export_main
-    from trainer.student.compose import compose
-
-    folder = tmp_path_factory.mktemp("recover")
+def _drawn_students(folder: Path, kinds: dict[str, str]) -> dict[str, checkpoint.Checkpoint]:
+    """Students of the given perceptions whose every tensor is drawn at random, as a fit leaves them, but the
+    norms' scales and shifts, which stay ones and zeros as at initialisation: equal initializers that the
+    exporter merges into one."""
     gen = torch.Generator().manual_seed(0)
     parts = {}
-    for name, kind in (("eye", "depth"), ("head", "privileged")):
+    for name, kind in kinds.items():
         assert student_main(["init", "--out", str(folder / f"{name}.pt"), *TINY, "--perception", kind]) == 0
         parts[name] = checkpoint.load(folder / f"{name}.pt")
         for key, value in parts[name].ema.items():
             if "norm" not in key.split(".")[-2] or key.endswith(("centre", "half_range")):
                 value.copy_(torch.rand(value.shape, generator=gen) + 0.5)
-    composed = compose(parts["eye"], parts["head"])
-    checkpoint.save(folder / "composed.pt", composed)
+    return parts
+
+
+def _exported(folder: Path, ckpt: checkpoint.Checkpoint) -> Path:
+    from export.__main__ import main as export_main
+
+    checkpoint.save(folder / "composed.pt", ckpt)
     assert export_main([str(folder / "composed.pt"), "--out", str(folder / "student.onnx")]) == 0
-    return folder / "student.onnx", composed, parts["head"]
+    return folder / "student.onnx"
+
+
+@pytest.fixture(scope="module")
+def composed_file(tmp_path_factory):
+    """A composed student exported to ONNX, the student and the head it was composed of."""
+    from trainer.student.compose import compose
+
+    folder = tmp_path_factory.mktemp("recover")
+    parts = _drawn_students(folder, {"eye": "depth", "head": "privileged"})
+    composed = compose(parts["eye"], parts["head"])
+    return _exported(folder, composed), composed, parts["head"]
 
 
 def test_a_composed_file_gives_back_its_student_and_its_head_exactly(composed_file, tmp_path):
@@ -57,6 +68,26 @@ def test_a_composed_file_gives_back_its_student_and_its_head_exactly(composed_fi
     assert student.info.data["recovered_from"]["sha256"] == checkpoint.sha256(path)
     again = compose(student, recovered_head)  # the pair composes back into the same student
     assert all(torch.equal(again.ema[k], composed.ema[k]) for k in composed.ema)
+
+
+def test_a_file_of_two_perceptions_gives_back_each_and_they_compose_back_into_it(tmp_path, capsys):
+    from trainer.student.compose import compose
+
+    parts = _drawn_students(tmp_path, {"eye": "depth", "other": "depth", "head": "privileged"})
+    pair = compose(parts["eye"], parts["head"], (parts["other"],))
+    path = _exported(tmp_path, pair)
+    capsys.readouterr()
+    assert recover_main([str(path), "--out", str(tmp_path / "out")]) == 0
+    assert set(json.loads(capsys.readouterr().out)["written"]) == {"student", "partner1", "head"}
+    back = {name: checkpoint.load(tmp_path / "out" / f"{name}.pt") for name in ("student", "partner1",
+                                                                                   "head")}
+    assert back["student"].config.perceptions == back["partner1"].config.perceptions == 1
+    assert back["head"].ema.keys() == parts["head"].ema.keys()
+    alone = compose(parts["other"], parts["head"])  # the partner, recovered, is the other eye composed
+    assert all(torch.equal(back["partner1"].ema[k], alone.ema[k]) for k in alone.ema)
+    again = compose(back["student"], back["head"], (back["partner1"],))
+    assert again.config == pair.config and again.ema.keys() == pair.ema.keys()
+    assert all(torch.equal(again.ema[k], pair.ema[k]) for k in pair.ema)
 
 
 def test_a_plain_depth_student_gives_back_one_checkpoint_and_an_earlier_student_is_refused(

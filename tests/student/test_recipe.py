@@ -388,40 +388,76 @@ def test_a_shifted_stack_carries_its_pixel_labels_along():
     torch.testing.assert_close(out.labels[:, OFFSET], labels[:, OFFSET])
 
 
+def _unlike_students(folder, kinds: dict[str, str]) -> dict:
+    """Tiny students of the given perceptions whose hand and label normalisers differ, as real fits' do."""
+    from trainer.student import checkpoint
+    from trainer.student.cli import main as student_main
+
+    gen = torch.Generator().manual_seed(0)
+    ckpts = {}
+    for name, kind in kinds.items():
+        path = folder / f"{name}.pt"
+        assert student_main(["init", "--out", str(path), "--prediction", "v_prediction", *TINY,
+                             "--perception", kind]) == 0
+        ckpts[name] = ckpt = checkpoint.load(path)
+        for key in ("hand_norm.centre", "label_norm.centre"):
+            ckpt.ema[key] = torch.randn(ckpt.ema[key].shape, generator=gen)
+        for key in ("hand_norm.half_range", "label_norm.half_range"):
+            ckpt.ema[key] = torch.rand(ckpt.ema[key].shape, generator=gen) + 0.5
+    return ckpts
+
+
+def _facts_in_head_units(eye, head, depth, state):
+    _, facts, _ = eye.perceive(depth, state)
+    return head.label_norm.normalise(eye.label_norm.unnormalise(facts))
+
+
 def test_a_composed_student_acts_on_the_readout_as_the_privileged_head_would(tmp_path):
     """The depth student's readout, turned into the head's units, feeds the privileged head: the composed
     network computes exactly that, though the two were normalised differently; and it exports with parity."""
     from export.__main__ import main as export_main
     from export.check import run_check
     from trainer.student import checkpoint
-    from trainer.student.cli import main as student_main
     from trainer.student.compose import compose
 
-    paths = {}
-    for name, kind in (("eye", ["depth"]), ("head", ["privileged"])):
-        paths[name] = tmp_path / f"{name}.pt"
-        assert student_main(["init", "--out", str(paths[name]), "--prediction", "v_prediction", *TINY,
-                             "--perception", *kind]) == 0
-    ckpts = {name: checkpoint.load(path) for name, path in paths.items()}
-    gen = torch.Generator().manual_seed(0)
-    for ckpt in ckpts.values():  # unlike normalisers, as two real fits have
-        for key in ("hand_norm.centre", "label_norm.centre"):
-            ckpt.ema[key] = torch.randn(ckpt.ema[key].shape, generator=gen)
-        for key in ("hand_norm.half_range", "label_norm.half_range"):
-            ckpt.ema[key] = torch.rand(ckpt.ema[key].shape, generator=gen) + 0.5
+    ckpts = _unlike_students(tmp_path, {"eye": "depth", "head": "privileged"})
     eye, head = (ckpts[name].policy() for name in ("eye", "head"))
     composed = compose(ckpts["eye"], ckpts["head"])
+    gen = torch.Generator().manual_seed(1)
     depth, state = torch.rand(3, 3, 96, 128, generator=gen), torch.randn(3, 8, generator=gen) * 0.3
     with torch.no_grad():
-        _, facts, _ = eye.perceive(depth, state)
-        in_head_units = head.label_norm.normalise(eye.label_norm.unnormalise(facts))
-        expected = head.fuse(facts[:, :0], in_head_units, state)
+        expected = head.fuse(state[:, :0], _facts_in_head_units(eye, head, depth, state), state)
         got = composed.policy().encode(depth, state)
     torch.testing.assert_close(got, expected, atol=1e-5, rtol=1e-5)
     assert not composed.config.head_features
     checkpoint.save(tmp_path / "c.pt", composed)
     assert export_main([str(tmp_path / "c.pt"), "--ddim-steps", "4", "--out", str(tmp_path / "c.onnx")]) == 0
     assert run_check(tmp_path / "c.onnx", repeats=1, trials=2, threads=1)["max_abs_err"] <= 1e-5
+
+
+def test_a_composed_pair_acts_on_the_mean_of_its_readouts(tmp_path, capsys):
+    """``compose --also``: each readout is turned into the head's units and the head reads their mean; a
+    partner that sees depth through another network is refused in one line."""
+    from trainer.student.cli import main as student_main
+    from trainer.student.compose import compose
+
+    ckpts = _unlike_students(tmp_path, {"eye": "depth", "other": "depth", "head": "privileged"})
+    eye, other, head = (ckpts[name].policy() for name in ("eye", "other", "head"))
+    pair = compose(ckpts["eye"], ckpts["head"], (ckpts["other"],))
+    gen = torch.Generator().manual_seed(1)
+    depth, state = torch.rand(3, 3, 96, 128, generator=gen), torch.randn(3, 8, generator=gen) * 0.3
+    with torch.no_grad():
+        mean = sum(_facts_in_head_units(e, head, depth, state) for e in (eye, other)) / 2
+        expected = head.fuse(state[:, :0], mean, state)
+        got = pair.policy().encode(depth, state)
+    torch.testing.assert_close(got, expected, atol=1e-5, rtol=1e-5)
+    assert pair.config.perceptions == 2
+    wide = tmp_path / "wide.pt"
+    assert student_main(["init", "--out", str(wide), "--perception", "depth", *TINY, "--width", "16"]) == 0
+    assert student_main(["compose", "--perception", str(tmp_path / "eye.pt"), "--also", str(wide), "--head",
+                         str(tmp_path / "head.pt"), "--out", str(tmp_path / "c.pt")]) == 2
+    err = capsys.readouterr().err
+    assert "--also students must see depth as --perception does: width differ" in err and err.count("\n") == 1
 
 
 def test_compose_refuses_a_head_that_reads_depth(tmp_path, capsys):

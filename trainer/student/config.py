@@ -87,6 +87,10 @@ class StudentConfig:
     """``perception="depth"``: the action head reads the depth features beside the facts. False: it reads
     only what the privileged head (M0) reads (the facts, the joint state, the hand's pose), so that a head
     trained on the true facts can act on the readout (``trainer student compose``)."""
+    perceptions: int = 1
+    """``perception="depth"``, ``head_features`` off: depth perceptions, each its own encoder, whose facts the
+    head reads averaged. Two readouts fitted apart err apart, so their mean aims closer than either
+    (``trainer student compose --also``; ``docs/student.md``)."""
 
     def __post_init__(self) -> None:
         if self.prediction not in PREDICTIONS:
@@ -101,6 +105,11 @@ class StudentConfig:
         if self.fine_keypoints < 2:
             raise StudentConfigError(f"fine_keypoints must be >= 2 (two are supervised), got "
                                      f"{self.fine_keypoints}")
+        if self.perceptions < 1:
+            raise StudentConfigError(f"perceptions must be >= 1, got {self.perceptions}")
+        if self.perceptions > 1 and (self.perception != "depth" or self.head_features):
+            raise StudentConfigError("perceptions > 1 averages depth readouts for a head that reads only the "
+                                     "facts: it needs perception='depth' and head_features off")
         if self.seen_offset and not self.hand_target:
             raise StudentConfigError("seen_offset needs hand_target (the head's offset outputs)")
         if self.object_offset and not self.hand_pose:

@@ -218,6 +218,8 @@ class PerceptionStudent(nn.Module):
         """Facts in metres -> standardised units: centre = mean, half_range = std over the training steps."""
         depth = config.perception == "depth"
         self.perception = Perception(config) if depth else None
+        self.partners = nn.ModuleList(Perception(config) for _ in range(config.perceptions - 1))
+        """More perceptions whose facts are averaged with the first's (``StudentConfig.perceptions``)."""
         features = self.perception.out_features if depth and config.head_features else 0
         inputs = config.state_dim + HAND_FEATURES + READOUT + 2
         self.state_mlp = nn.Sequential(nn.Linear(inputs, config.state_features), nn.ReLU(),
@@ -226,8 +228,13 @@ class PerceptionStudent(nn.Module):
                                       config.step_features)
 
     def perceive(self, depth: torch.Tensor, state: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        """(features, standardised facts, fine keypoints) of a depth stack: ``Perception``'s outputs."""
-        return self.perception(depth, self.hand_norm.normalise(hand_pose(state)))
+        """(features, standardised facts, fine keypoints) of a depth stack: ``Perception``'s outputs, the
+        facts averaged over the partners' where there are partners."""
+        hand = self.hand_norm.normalise(hand_pose(state))
+        features, facts, fine = self.perception(depth, hand)
+        if self.partners:
+            facts = torch.stack([facts, *(partner(depth, hand)[1] for partner in self.partners)]).mean(dim=0)
+        return features, facts, fine
 
     def encode(self, observation: torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         """Depth stack [B, To, H, W] (or, privileged, the true label rows [B, >= READOUT]) + raw state [B, S]
