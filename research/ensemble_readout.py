@@ -14,7 +14,7 @@ the hand's move by forward kinematics (the object stands still until it is grasp
 
 Seeds ``--seed``.. as ``trainer evaluate``, but the start noise is drawn as ``OraclePolicy`` draws it, not as
 the runtime does: pair with another torch run (``composed_policy.py``), not with ``trainer evaluate``'s JSON
-(here the pair grasped 457 of 540 unseen, through the runtime 448: ``pair_export.py``).
+(here the pair grasped 457 of 540 unseen, through the runtime 448: ``trainer student compose --also``).
 """
 
 from __future__ import annotations

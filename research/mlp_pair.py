@@ -10,9 +10,7 @@ alike the shipped and a new MLP's errors are (correlation of the horizontal erro
 
     PYTHONPATH=. python research/mlp_pair.py $R/recovered/shipped/student.pt \
         --train $R/research/mlp/train.zarr --test $R/research/mlp/own_unseen.zarr \
-        --mlps 2 --steps 4000 --out $R/research/mlp/fresh [--save]
-
-With ``--save`` the first new MLP's weights are written (``mlp0.pt``), for ``pair_export.py --mlp``.
+        --mlps 2 --steps 4000 --out $R/research/mlp/fresh
 """
 
 from __future__ import annotations
@@ -58,7 +56,6 @@ def main() -> None:
     p.add_argument("--lr", type=float, default=1e-3)
     p.add_argument("--batch", type=int, default=512)
     p.add_argument("--out", type=Path, required=True)
-    p.add_argument("--save", action="store_true")
     args = p.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     ckpt = checkpoint.load(args.checkpoint)
@@ -93,8 +90,6 @@ def main() -> None:
             print(f"{s.stem} {name:16s} near median {r['near']['offset_cm_median']} bias p90 "
                   f"{r['near']['bias_cm_p90']} yaw p90 {r['yaw_p90']} {r.get('error_corr_xy', '')}")
     (args.out / "report.json").write_text(json.dumps(report, indent=1))
-    if args.save:
-        torch.save({"readout": mlps[0].state_dict()}, args.out / "mlp0.pt")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ MENU = Menu("python -m trainer", {
     "evaluate": ("closed-loop success rate of a policy in the simulated world", "trainer.eval.success:main"),
     "teacher": ("train the PPO teacher on privileged state", "trainer.teacher.cli:main"),
     "ddg": ("Diffusion Depth Generator: fit | generate | metrics | paired | bench", "trainer.ddg.cli:main"),
-    "student": ("diffusion-policy student: fit | recipe | readout | init | probe",
+    "student": ("diffusion-policy student: fit | recipe | refit | readout | compose | init | probe",
                 "trainer.student.cli:main"),
     "compare": ("two evaluate results on the same episodes, episode by episode (exact McNemar)",
                 "trainer.eval.compare:main"),

@@ -542,6 +542,34 @@ def test_readout_refuses_an_unknown_kind_in_one_line(tmp_path, capsys):
     assert err.startswith("error: unknown object kind 'dragonfruit'") and "\n" not in err
 
 
+def test_refit_fits_a_student_on_given_stores_from_its_own_weights(tmp_path, capsys):
+    """``student refit``: the init's network and weights, fitted on the named stores, resumable; a student
+    that is not a depth student of one perception is refused in one line."""
+    from trainer.student.cli import main as student_main
+    from trainer.student.recipe import Recipe, RecipeConfig
+
+    head, eye = tmp_path / "m0.pt", tmp_path / "eye.pt"
+    assert student_main(["init", "--out", str(head), "--perception", "privileged", *TINY]) == 0
+    assert student_main(["init", "--out", str(eye), "--perception", "depth", *TINY]) == 0
+    recipe = Recipe(tmp_path / "r", RecipeConfig(head=str(head), hover_episodes=1, workers=1))
+    recipe.env = EnvConfig(objects=("cube",), max_steps=6, depth=recipe.env.depth)
+    recipe.hover()
+    args = ["refit", "--init", str(eye), "--stores", str(recipe.hover_store()), "--steps", "2", "--batch",
+            "2", "--shares", "cube=0.5", "--out", str(tmp_path / "fit")]
+    assert student_main(args) == 0
+    done, init = checkpoint.load(tmp_path / "fit" / "ckpt.pt"), checkpoint.load(eye)
+    assert done.step == 2 and done.config == init.config
+    assert done.info.data["refit"]["stores"] == [str(recipe.hover_store())]
+    key = "perception.readout.4.weight"
+    assert not torch.equal(done.ema[key], init.ema[key])
+    capsys.readouterr()
+    assert student_main(args) == 0 and json.loads(capsys.readouterr().out)["steps_this_run"] == 0  # resumed
+    assert student_main(["refit", "--init", str(head), "--stores", str(recipe.hover_store()), "--out",
+                         str(tmp_path / "no")]) == 2
+    err = capsys.readouterr().err
+    assert "--init must be a depth student of one perception" in err and err.count("\n") == 1
+
+
 def test_hover_episodes_are_driven_by_the_biased_head_and_join_every_fit(tmp_path, capsys):
     """``--hover-episodes``: the privileged head, its facts offset by ``--hover-cm``, drives a store labelled
     by the expert, which every fit reads beside the rounds' stores; without ``--head`` it is refused."""

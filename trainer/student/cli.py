@@ -1,5 +1,5 @@
-"""``python -m trainer student fit|recipe|readout|compose|init|probe ...``; fit also runs under ``torchrun
---nproc_per_node N``."""
+"""``python -m trainer student fit|recipe|refit|readout|compose|init|probe ...``; fit also runs under
+``torchrun --nproc_per_node N``."""
 
 from __future__ import annotations
 
@@ -32,6 +32,8 @@ MENU = Menu("python -m trainer student", {
     "fit": ("train the student on demos (eq. 10, EMA, checkpoints, resume)", "trainer.student.train:main"),
     "recipe": ("the student that grasps: demos, DAgger rounds, export, evaluation",
                "trainer.student.recipe:main"),
+    "refit": ("a depth student refitted on given labelled stores, with shares per object group",
+              "trainer.student.refit:main"),
     "readout": ("a depth student's perception errors on labelled frames (M1)",
                 "trainer.student.readout:main"),
     "compose": ("one depth student from a depth student's perception and a privileged head (M0)",
