@@ -37,6 +37,7 @@ from export.reference import REFERENCE_SEED, example_feeds, reference_actions
 from runtime.metadata import MetadataError, PolicyMetadata
 from trainer.student import checkpoint
 from trainer.student.checkpoint import Checkpoint, TrainingInfo, sha256
+from trainer.student.compose import perception_prefixes
 from trainer.student.config import StudentConfig, StudentConfigError
 from trainer.student.model import build_policy
 
@@ -167,8 +168,7 @@ def _perceptions(student: Checkpoint) -> dict[str, Checkpoint]:
     composed = {k: v for k, v in student.info.data["composed"].items() if k != "partners"}
     records = [composed["perception"], *student.info.data["composed"]["partners"]]
     out = {}
-    for i, record in enumerate(records):
-        own = "perception." if i == 0 else f"partners.{i - 1}."
+    for i, (own, record) in enumerate(zip(perception_prefixes(len(records)), records, strict=True)):
         state = _head_weights(student)
         state.update({"perception." + k.removeprefix(own): v.clone() for k, v in student.ema.items()
                       if k.startswith(own)})

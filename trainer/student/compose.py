@@ -43,7 +43,7 @@ def compose(perception: Checkpoint, head: Checkpoint, partners: tuple[Checkpoint
                                  **{name: getattr(head.config, name) for name in HEAD_FIELDS})
     net = PerceptionStudent(config)
     weights = {k: v.clone() for k, v in head.ema.items()}
-    for prefix, eye in zip(_prefixes(len(eyes)), eyes, strict=True):
+    for prefix, eye in zip(perception_prefixes(len(eyes)), eyes, strict=True):
         weights.update({prefix + k.removeprefix("perception."): v.clone() for k, v in eye.ema.items()
                         if k.startswith("perception.")})
         _fold_hand_scaling(weights, prefix, net.perception.out_features, eye.ema, head.ema)
@@ -69,8 +69,9 @@ def _check_perception(eye: Checkpoint, first: Checkpoint) -> None:
         raise ValueError(f"--also students must see depth as --perception does: {', '.join(differ)} differ")
 
 
-def _prefixes(perceptions: int) -> list[str]:
-    """Where each perception's weights live in the composed network: the first, then its partners."""
+def perception_prefixes(perceptions: int) -> list[str]:
+    """Where each perception's weights live in a composed network (their state-dict key prefixes): the first,
+    then its partners."""
     return ["perception.", *(f"partners.{i}." for i in range(perceptions - 1))]
 
 
