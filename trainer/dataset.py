@@ -23,7 +23,7 @@ Layout (names are a contract):
     meta/camera_extrinsics  float64 [E, 4, 4]  world-from-camera, OpenCV axes
     meta/randomisation      str     [E]     JSON of the episode's draws (hil_sim.world.Episode)
     attrs: depth_spec, action_scale, control_rate_hz, depth_scale (0.001), attempted, succeeded, failed,
-           teacher, seed, sensor (with data/depth_sensor), chunk_horizon (with data/labels),
+           teacher, seed, sensor (with data/depth_sensor), chunk_horizon (with data/chunk),
            ddg (with DDG depth: the generator's model, steps, seed, chunk and eta)
 Each depth a student can train on (``DEPTH_SOURCES``) is one of these arrays; ``DemoStore.depth`` reads it
 and refuses one the store lacks or has not finished generating.
@@ -126,17 +126,24 @@ class DemoStore:
 
     @classmethod
     def create(cls, path: str | Path, *, spec: DepthSpec, action_scale: float, control_rate_hz: float,
-               rgb: bool = False, sensor: str | None = None, chunk_horizon: int = 0,
+               rgb: bool = False, sensor: str | None = None, labels: bool = False, chunk_horizon: int = 0,
                attrs: dict | None = None) -> DemoStore:
         """A new empty store, or the existing one at ``path`` reopened for appending (resume). ``sensor``: the
         store keeps that sensor's frames too (``data/depth_sensor``); a store to resume must keep the same.
-        ``chunk_horizon`` > 0: it keeps perception labels and the expert's action chunks of that length."""
+        ``labels``: it keeps each frame's perception labels; ``chunk_horizon`` > 0 (with labels): the expert's
+        action chunks of that length too."""
+        if chunk_horizon and not labels:
+            raise DatasetError("a store of expert chunks keeps the frames' labels too: labels=True")
         path = Path(path)
         if (path / "zarr.json").is_file():
             store = cls.open(path, mode="a")
             if store.attrs.get("sensor") != sensor:
                 raise DatasetError(f"{str(path)!r} keeps the frames of sensor {store.attrs.get('sensor')!r}, "
                                    f"not {sensor!r}: resume it with the same sensor, or choose another store")
+            if ("data/labels" in store.root) != labels:
+                kept = "keeps" if not labels else "keeps no"
+                raise DatasetError(f"{str(path)!r} {kept} perception labels, unlike the episodes to add: "
+                                   "choose another store")
             kept = store.attrs.get("chunk_horizon", 0)
             if kept != chunk_horizon:
                 raise DatasetError(f"{str(path)!r} keeps expert chunks of {kept} steps, not {chunk_horizon}: "
@@ -160,8 +167,9 @@ class DemoStore:
             arrays["data/rgb"] = ((h, w, 3), np.uint8)
         if sensor is not None:
             arrays["data/depth_sensor"] = ((h, w), np.uint16)
-        if chunk_horizon:
+        if labels:
             arrays["data/labels"] = ((len(LABELS),), np.float32)
+        if chunk_horizon:
             arrays["data/chunk"] = ((chunk_horizon, 8), np.float32)
         for name, (shape, dtype) in arrays.items():
             root.create_array(name, shape=(0, *shape), chunks=(_CHUNK_STEPS, *shape), dtype=dtype,

@@ -101,6 +101,39 @@ def test_a_dagger_round_records_the_learners_states_with_the_experts_labels(tmp_
     assert not np.allclose(ep["action"][:, :7], ep["chunk"][:, 0, :7], atol=0.05)  # the learner drove
 
 
+def test_a_round_without_chunks_drives_the_same_states_and_labels_its_frames_alone(tmp_path):
+    """``RoundSpec.horizon`` 0 skips the expert's lookahead (3/4 of an episode's time): the learner reaches
+    the same states with the same labels, the store holds no chunks, and ``beta`` still hands steps to the
+    expert, whose action from that state is executed."""
+    from trainer.student.cli import main as student_main
+
+    ckpt = tmp_path / "oracle.pt"
+    assert student_main(["init", "--out", str(ckpt), "--perception", "privileged", *TINY]) == 0
+    config = EnvConfig(objects=("cube",), max_steps=20, render_depth=False)
+    learner = f"oracle:{ckpt}"
+    for name, horizon in (("chunks", 6), ("frames", 0)):
+        spec = RoundSpec(learner=learner, horizon=horizon, stall_steps=100)
+        collect_round(tmp_path / f"{name}.zarr", config, spec, episodes=1, seed=5)
+    with_chunks, alone = (DemoStore.open(tmp_path / f"{n}.zarr") for n in ("chunks", "frames"))
+    assert "data/chunk" in with_chunks.root and "data/chunk" not in alone.root
+    assert "chunk_horizon" not in alone.attrs
+    for key in ("state", "action", "labels"):
+        np.testing.assert_array_equal(alone.episode(0)[key], with_chunks.episode(0)[key])
+
+    spec = RoundSpec(learner=learner, beta=1.0, horizon=0, stall_steps=100)
+    collect_round(tmp_path / "expert.zarr", config, spec, episodes=1, seed=6)
+    ep = DemoStore.open(tmp_path / "expert.zarr").episode(0)
+    env, expert = GraspEnv(config), ReactiveExpert()
+    try:
+        _, info = env.reset(seed=6, options={"kind": "cube"})
+        expert.reset(info)
+        for action in ep["action"]:
+            np.testing.assert_allclose(action, expert.act(env.observation()), atol=1e-6)
+            env.step(action)
+    finally:
+        env.close()
+
+
 def test_training_stacks_are_the_runtimes(tmp_path):
     from trainer.student.steps import LabelledSteps
 
@@ -568,6 +601,30 @@ def test_refit_fits_a_student_on_given_stores_from_its_own_weights(tmp_path, cap
                          str(tmp_path / "no")]) == 2
     err = capsys.readouterr().err
     assert "--init must be a depth student of one perception" in err and err.count("\n") == 1
+
+
+def test_a_perception_only_refit_reads_frames_without_chunks_and_leaves_the_head_as_it_was(tmp_path, capsys):
+    """``refit --perception-only``: the readout is fitted on a store whose frames are labelled alone
+    (``readout --no-chunks``), the head's weights stay the init's (to the EMA's float rounding, 1e-7 where
+    two optimiser steps move a weight 1e-6 or more); a full refit refuses that store in one line that says
+    what it holds."""
+    from trainer.student.cli import main as student_main
+
+    eye = tmp_path / "eye.pt"
+    assert student_main(["init", "--out", str(eye), "--perception", "depth", *TINY]) == 0
+    config = EnvConfig(objects=("cube",), max_steps=6, depth=checkpoint.load(eye).info.depth_spec)
+    store = tmp_path / "frames.zarr"
+    collect_round(store, config, RoundSpec(horizon=0), episodes=2, seed=3)
+    args = ["refit", "--init", str(eye), "--stores", str(store), "--steps", "2", "--batch", "2", "--out"]
+    assert student_main([*args, str(tmp_path / "fit"), "--perception-only"]) == 0
+    done, init = checkpoint.load(tmp_path / "fit" / "ckpt.pt"), checkpoint.load(eye)
+    assert not torch.equal(done.ema["perception.readout.4.weight"], init.ema["perception.readout.4.weight"])
+    head = [k for k in init.ema if not k.startswith("perception.")]
+    assert head and all(torch.allclose(done.ema[k], init.ema[k], rtol=0, atol=1e-7) for k in head)
+    capsys.readouterr()
+    assert student_main([*args, str(tmp_path / "full")]) == 2
+    err = capsys.readouterr().err
+    assert "its frames are labelled alone, for a perception-only fit" in err and err.count("\n") == 1
 
 
 def test_hover_episodes_are_driven_by_the_biased_head_and_join_every_fit(tmp_path, capsys):

@@ -32,7 +32,9 @@ class RoundSpec:
     beta: float = 0.0
     """Probability that a learner step executes the expert's action instead."""
     horizon: int = 16
-    """Length of the expert's action chunk recorded as each step's label (the student's action horizon)."""
+    """Length of the expert's action chunk recorded as each step's label (the student's action horizon); 0
+    records the frames' perception labels alone, which is all a readout refit reads (``trainer student refit
+    --perception-only``): the expert's lookahead is ~3/4 of a learner episode's time."""
     stall_steps: int = 10
     """A learner episode ends once the hand moved less than ``stall_m`` over this many steps."""
     stall_m: float = 0.002
@@ -59,11 +61,12 @@ def labelled_episode(env: GraspEnv, expert: ReactiveExpert, learner, job: Job,
         if learner is None:
             action = np.asarray(expert.act(obs), np.float32)
         else:
-            chunk = env.lookahead(expert.act, spec.horizon)
-            steps["chunk"].append(chunk)
+            chunk = env.lookahead(expert.act, spec.horizon) if spec.horizon else None
+            if chunk is not None:
+                steps["chunk"].append(chunk)
             action = np.asarray(learner.act(Observation(obs, info.get("depth"), info["state"])), np.float32)
-            if rng.random() < spec.beta:
-                action = chunk[0]
+            if rng.random() < spec.beta:  # drawn at every step alike, so both label modes drive the same
+                action = chunk[0] if chunk is not None else np.asarray(expert.act(obs), np.float32)
         for key, value in (("depth", info.get("depth")), ("state", info["state"]), ("action", action)):
             steps[key].append(value)
         hands.append(obs[HAND_POSITION])
@@ -73,7 +76,8 @@ def labelled_episode(env: GraspEnv, expert: ReactiveExpert, learner, job: Job,
         if terminated or truncated or stalled:
             break
     actions = np.stack(steps["action"])
-    chunks = np.stack(steps["chunk"]) if steps["chunk"] else chunks_ahead(actions, spec.horizon)
+    chunks = (np.stack(steps["chunk"]) if steps["chunk"]
+              else chunks_ahead(actions, spec.horizon) if spec.horizon else None)
     depth = (np.stack(steps["depth"]) if steps["depth"][0] is not None
              else np.zeros((len(actions), env.spec.out_height, env.spec.out_width), np.uint16))
     world = env.world
@@ -101,7 +105,7 @@ def collect_round(path: Path, config: EnvConfig, spec: RoundSpec, *, episodes: i
     """Episodes ``seed``.. (kinds in turn) into the store at ``path``, resumed where it stopped; returns the
     store's tally."""
     store = DemoStore.create(path, spec=config.depth, action_scale=config.action_scale,
-                             control_rate_hz=config.control_rate_hz, chunk_horizon=spec.horizon,
+                             control_rate_hz=config.control_rate_hz, labels=True, chunk_horizon=spec.horizon,
                              attrs={"teacher": "reactive", "learner": spec.learner, "beta": spec.beta,
                                     "seed": seed, "objects": list(config.objects)})
     kinds = config.objects

@@ -73,6 +73,10 @@ class DistillConfig:
     against 61.1 % seen (18 episodes won, 8 lost: not cleared), its readout no better (``docs/history.md``,
     2026-11-29). A round on the seen kinds scaled (``scaled``) fitted with ``seen=0.4 scaled=0.25
     squares=0.15`` was level with the file before it (2026-11-30)."""
+    perception_only: bool = False
+    """Fit the perception alone: no denoising term, so the head keeps its weights and the stores need no
+    expert chunks (``RoundSpec.horizon`` 0 rounds, ~4x faster to collect). Enough wherever only the readout
+    is kept: ``trainer student compose`` takes the perception from a depth student and the head from M0."""
     precision: str = "fp32"
     """The arithmetic of the fit's forward pass: fp32, or bf16 (``torch.autocast``: the weights, the optimiser
     and the losses stay fp32). On 2 CPU cores a recipe round's fit took 1.17 s a step in bf16 against 1.50 in
@@ -131,19 +135,20 @@ def losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Gener
 
 def _losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Generator,
             cfg: DistillConfig) -> tuple[torch.Tensor, dict[str, float]]:
-    clean = net.action_norm.normalise(batch.chunk)
-    noise = torch.randn(clean.shape, generator=gen, device=gen.device)
-    k = torch.randint(0, scheduler.config.num_train_timesteps, (clean.shape[0],), generator=gen,
-                      device=gen.device)
-    noisy = scheduler.add_noise(clean, noise, k)
     terms = {}
+    if not cfg.perception_only:  # drawn first, as by every fit before the option: the same draws
+        clean = net.action_norm.normalise(batch.chunk)
+        noise = torch.randn(clean.shape, generator=gen, device=gen.device)
+        k = torch.randint(0, scheduler.config.num_train_timesteps, (clean.shape[0],), generator=gen,
+                          device=gen.device)
+        noisy = scheduler.add_noise(clean, noise, k)
     if net.perception is None:
         obs = net.encode(batch.labels, batch.state)
     else:
         batch = shifted(batch, cfg.shift_px, gen)
         features, facts, keypoints = net.perceive(batch.depth, batch.state)
         facts, keypoints = facts.float(), keypoints.float()
-        obs = net.fuse(features, facts.detach(), batch.state)
+        obs = None if cfg.perception_only else net.fuse(features, facts.detach(), batch.state)
         truth = net.label_norm.normalise(batch.labels[:, :READOUT])
         terms["facts"] = nn.functional.mse_loss(facts, truth)
         if cfg.near_loss:
@@ -152,9 +157,10 @@ def _losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Gene
         seen = (pixels.abs() <= 1).all(dim=-1)
         error = ((keypoints[:, :SUPERVISED_KEYPOINTS] - pixels) ** 2).sum(dim=-1)
         terms["keypoints"] = (error * seen).sum() / seen.sum().clamp_min(1)
-    terms["denoise"] = nn.functional.mse_loss(net(noisy, k, obs).float(),
-                                              training_target(scheduler, clean, noise, k))
-    total = (terms["denoise"] + cfg.facts_loss * terms.get("facts", 0.0)
+    if not cfg.perception_only:
+        terms["denoise"] = nn.functional.mse_loss(net(noisy, k, obs).float(),
+                                                  training_target(scheduler, clean, noise, k))
+    total = (terms.get("denoise", 0.0) + cfg.facts_loss * terms.get("facts", 0.0)
              + cfg.near_loss * terms.get("near", 0.0) + cfg.keypoint_loss * terms.get("keypoints", 0.0))
     return total, {name: float(value.detach()) for name, value in terms.items()}
 
@@ -212,6 +218,9 @@ def start(out: Path, model_cfg: StudentConfig, info: TrainingInfo, steps: Labell
         source = checkpoint.load(init)
         return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in source.ema.items()},
                           model={k: v.clone() for k, v in source.ema.items()})
+    if steps.chunk_np is None:
+        raise ValueError("a student fitted from scratch needs the expert's chunks: a perception-only fit "
+                         "starts from a trained student (--init)")
     ckpt = checkpoint.fresh(model_cfg, info)
     net = PerceptionStudent(model_cfg)
     net.load_state_dict(ckpt.model)
@@ -224,8 +233,12 @@ def start(out: Path, model_cfg: StudentConfig, info: TrainingInfo, steps: Labell
 def distill(steps: LabelledSteps, out: Path, model_cfg: StudentConfig, cfg: DistillConfig,
             info: TrainingInfo, init: Path | None = None) -> dict:
     """Fit to ``cfg.steps`` into ``out``/ckpt.pt (with loss.png); returns a summary."""
+    if cfg.perception_only and model_cfg.perception != "depth":
+        raise ValueError(f"a perception-only fit needs a depth student, not perception="
+                         f"{model_cfg.perception!r}")
     out.mkdir(parents=True, exist_ok=True)
     ckpt = start(out, model_cfg, info, steps, init)
+    what = "readout MSE (standardised facts)" if cfg.perception_only else "noise MSE (eq. 10)"
     dev = steps.device
     warn_slow_bf16(cfg, dev)
     net = training_layout(PerceptionStudent(model_cfg).to(dev))
@@ -251,11 +264,11 @@ def distill(steps: LabelledSteps, out: Path, model_cfg: StudentConfig, cfg: Dist
         loss, terms = losses(net, scheduler, batch, gen, cfg)
         terms["grad_norm"] = optimise(net, optim, loss, cfg.max_grad_norm)
         ema_update(ema, net, step, cfg.ema_max)
-        ckpt.losses.append(terms["denoise"])
+        ckpt.losses.append(terms["facts"] if cfg.perception_only else terms["denoise"])
         ckpt.step = step + 1
         bar.set_postfix({k: f"{v:.4f}" for k, v in terms.items()})
         if ckpt.step % cfg.ckpt_every == 0 or ckpt.step == cfg.steps:
-            save(out, ckpt, net, ema, optim)
+            save(out, ckpt, net, ema, optim, what)
     return {"steps": ckpt.step, "steps_this_run": ckpt.step - first, "device": str(dev),
             "precision": cfg.precision, "seconds": round(time.perf_counter() - began, 1), "last_terms": terms,
             "denoise_last_100": float(np.mean(ckpt.losses[-100:])) if ckpt.losses else None}
@@ -313,9 +326,10 @@ def optimise(net: nn.Module, optim: torch.optim.Optimizer, loss: torch.Tensor, m
 
 
 def save(out: Path, ckpt: Checkpoint, net: nn.Module, ema: dict[str, torch.Tensor],
-         optim: torch.optim.Optimizer) -> None:
+         optim: torch.optim.Optimizer, what: str) -> None:
+    """The checkpoint, and the plot of ``ckpt.losses`` (``what`` they are)."""
     ckpt.model = {k: v.detach().cpu() for k, v in net.state_dict().items()}
     ckpt.ema = {k: v.detach().cpu() for k, v in ema.items()}
     ckpt.optimizer = optim.state_dict()
     checkpoint.save(out / CKPT_NAME, ckpt)
-    plot_losses(ckpt.losses, out / "loss.png")
+    plot_losses(ckpt.losses, out / "loss.png", what)

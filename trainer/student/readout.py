@@ -46,7 +46,8 @@ def perceive_store(ckpt_path: Path, store: Path, device: torch.device | str = "c
     ([-1, 1] image coordinates) and the store's labelled steps."""
     net = checkpoint.load(ckpt_path).policy().to(device)
     cfg = net.config
-    steps = LabelledSteps([store], cfg.obs_horizon, cfg.action_horizon, depth=True, device=device)
+    steps = LabelledSteps([store], cfg.obs_horizon, cfg.action_horizon, depth=True, chunks=False,
+                          device=device)
     facts, keypoints = [], []
     with torch.no_grad():
         for start in range(0, len(steps), batch):
@@ -161,13 +162,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=30_000, help="first episode seed (apart from the recipe's)")
     p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--no-chunks", action="store_true",
+                   help="label the frames alone, not with the expert's action chunks from each state (its "
+                        "lookahead is ~3/4 of an episode's time): a store for `trainer student refit "
+                        "--perception-only`")
     args = p.parse_args(argv)
     try:
         if args.episodes:
             spec = checkpoint.load(args.checkpoint).info.depth_spec
             env = EnvConfig(objects=select_kinds(args.objects), depth=spec)
-            collect_round(args.store, env, RoundSpec(learner=args.learner), episodes=args.episodes,
-                          seed=args.seed, workers=args.workers)
+            spec = RoundSpec(learner=args.learner, horizon=0 if args.no_chunks else RoundSpec.horizon)
+            collect_round(args.store, env, spec, episodes=args.episodes, seed=args.seed, workers=args.workers)
         print(json.dumps(measure(args.checkpoint, args.store), indent=1))
     except (ValueError, OSError) as exc:  # an unknown kind is an ObjectError, a ValueError
         print(f"error: {exc}", file=sys.stderr)

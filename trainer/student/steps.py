@@ -34,16 +34,20 @@ class StepBatch:
     state: torch.Tensor
     labels: torch.Tensor
     """float32 [B, 12] (``trainer.sim.labels.LABELS``)."""
-    chunk: torch.Tensor
-    """float32 [B, Ha, 8] the expert's action chunk from the step's state, env units."""
+    chunk: torch.Tensor | None
+    """float32 [B, Ha, 8] the expert's action chunk from the step's state, env units; None when the steps
+    are read without them (a perception-only fit)."""
 
 
 class LabelledSteps:
     def __init__(self, paths: list[Path], obs_horizon: int, action_horizon: int, *, depth: bool,
-                 device: torch.device | str = "cpu") -> None:
+                 chunks: bool = True, device: torch.device | str = "cpu") -> None:
+        """``chunks``: read the expert's action chunks too (every store must hold them); without, the steps
+        serve perception alone, and stores of frame labels only (a ``RoundSpec.horizon`` 0 round) will do."""
         self.device = torch.device(device)
         stores = [DemoStore.open(p) for p in paths]
-        parts = [self._read(store, p, action_horizon) for store, p in zip(stores, paths, strict=True)]
+        parts = [self._read(store, p, action_horizon if chunks else 0)
+                 for store, p in zip(stores, paths, strict=True)]
         self.spec: DepthSpec = parts[0]["spec"]
         for p, part in zip(paths, parts, strict=True):
             if part["spec"] != self.spec:
@@ -52,7 +56,7 @@ class LabelledSteps:
         start = np.concatenate([part["start"] + off for part, off in zip(parts, offsets, strict=False)])
         self.state_np = np.concatenate([part["state"] for part in parts])
         self.labels_np = np.concatenate([part["labels"] for part in parts])
-        self.chunk_np = np.concatenate([part["chunk"] for part in parts])
+        self.chunk_np = np.concatenate([part["chunk"] for part in parts]) if chunks else None
         self.kinds = np.concatenate([part["kinds"] for part in parts])
         """str [N]: the object kind of each step's episode."""
         back = np.arange(obs_horizon - 1, -1, -1)
@@ -67,22 +71,24 @@ class LabelledSteps:
         self.normalised = torch.from_numpy(normalise(np.arange(2 ** 16, dtype=np.uint16), scales.pop(),
                                                      self.spec)).to(self.device)
         """float32 [65536]: ``normalise`` of each uint16 sensor value."""
-        self.state, self.labels, self.chunk = (torch.from_numpy(a).to(self.device)
+        self.state, self.labels, self.chunk = (None if a is None else torch.from_numpy(a).to(self.device)
                                                for a in (self.state_np, self.labels_np, self.chunk_np))
 
     @staticmethod
     def _read(store: DemoStore, path: Path, action_horizon: int) -> dict:
+        """A store's steps, with the expert's chunks of ``action_horizon`` actions (none when 0)."""
         root, n = store.root, store.n_steps
         if "data/labels" not in root:
             raise StepsError(f"{path} records no perception labels: make it with `trainer student recipe`")
-        if store.attrs["chunk_horizon"] < action_horizon:
-            raise StepsError(f"{path} labels chunks of {store.attrs['chunk_horizon']} steps, the student "
-                             f"predicts {action_horizon}")
+        kept = store.attrs.get("chunk_horizon", 0)
+        if kept < action_horizon:
+            raise StepsError(f"{path} labels chunks of {kept} steps, the student predicts {action_horizon}"
+                             + ("" if kept else ": its frames are labelled alone, for a perception-only fit"))
         ends = store.episode_ends
         lengths = np.diff(ends, prepend=0)
+        chunk = np.asarray(root["data/chunk"][:n, :action_horizon], np.float32) if action_horizon else None
         return {"spec": store.depth_spec, "state": np.asarray(root["data/state"][:n], np.float32),
-                "labels": np.asarray(root["data/labels"][:n], np.float32),
-                "chunk": np.asarray(root["data/chunk"][:n, :action_horizon], np.float32),
+                "labels": np.asarray(root["data/labels"][:n], np.float32), "chunk": chunk,
                 "start": np.repeat(ends - lengths, lengths), "kinds": np.repeat(store.kinds, lengths),
                 "depth_scale": float(store.attrs["depth_scale"])}
 
@@ -95,7 +101,8 @@ class LabelledSteps:
         if self.frames is not None:
             sensor = self.frames[self.stack_index[index]].int() & 0xFFFF  # int16 bits -> uint16 values
             depth = self.normalised[sensor]
-        return StepBatch(depth, self.state[index], self.labels[index], self.chunk[index])
+        chunk = None if self.chunk is None else self.chunk[index]
+        return StepBatch(depth, self.state[index], self.labels[index], chunk)
 
 
 def _frames(stores: list[DemoStore], folder: Path | None) -> np.ndarray:

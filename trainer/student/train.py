@@ -179,7 +179,7 @@ def fit_to_demos(net: StudentPolicy, data: DemoDataset) -> None:
     net.fit_normalisers(data.state, data.action, data.raw_targets)
 
 
-def plot_losses(losses: list[float], path: Path) -> None:
+def plot_losses(losses: list[float], path: Path, what: str = "noise MSE (eq. 10)") -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -190,7 +190,7 @@ def plot_losses(losses: list[float], path: Path) -> None:
     if len(losses) >= window:
         smooth = np.convolve(losses, np.ones(window) / window, mode="valid")
         ax.plot(steps[window - 1:], smooth, lw=1.5, label=f"mean of {window}")
-    ax.set(xlabel="step", ylabel="noise MSE (eq. 10)", yscale="log", title="student training loss")
+    ax.set(xlabel="step", ylabel=what, yscale="log", title="student training loss")
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
