@@ -141,8 +141,8 @@ class DemoStore:
                 raise DatasetError(f"{str(path)!r} keeps the frames of sensor {store.attrs.get('sensor')!r}, "
                                    f"not {sensor!r}: resume it with the same sensor, or choose another store")
             if ("data/labels" in store.root) != labels:
-                kept = "keeps" if not labels else "keeps no"
-                raise DatasetError(f"{str(path)!r} {kept} perception labels, unlike the episodes to add: "
+                held = "keeps" if not labels else "keeps no"
+                raise DatasetError(f"{str(path)!r} {held} perception labels, unlike the episodes to add: "
                                    "choose another store")
             kept = store.attrs.get("chunk_horizon", 0)
             if kept != chunk_horizon:
