@@ -238,7 +238,9 @@ def distill(steps: LabelledSteps, out: Path, model_cfg: StudentConfig, cfg: Dist
                          f"{model_cfg.perception!r}")
     out.mkdir(parents=True, exist_ok=True)
     ckpt = start(out, model_cfg, info, steps, init)
-    what = "readout MSE (standardised facts)" if cfg.perception_only else "noise MSE (eq. 10)"
+    # the loss term a fit's curve and summary follow, and what it is
+    tracked, what = (("facts", "readout MSE (standardised facts)") if cfg.perception_only
+                     else ("denoise", "noise MSE (eq. 10)"))
     dev = steps.device
     warn_slow_bf16(cfg, dev)
     net = training_layout(PerceptionStudent(model_cfg).to(dev))
@@ -264,14 +266,14 @@ def distill(steps: LabelledSteps, out: Path, model_cfg: StudentConfig, cfg: Dist
         loss, terms = losses(net, scheduler, batch, gen, cfg)
         terms["grad_norm"] = optimise(net, optim, loss, cfg.max_grad_norm)
         ema_update(ema, net, step, cfg.ema_max)
-        ckpt.losses.append(terms["facts"] if cfg.perception_only else terms["denoise"])
+        ckpt.losses.append(terms[tracked])
         ckpt.step = step + 1
         bar.set_postfix({k: f"{v:.4f}" for k, v in terms.items()})
         if ckpt.step % cfg.ckpt_every == 0 or ckpt.step == cfg.steps:
             save(out, ckpt, net, ema, optim, what)
     return {"steps": ckpt.step, "steps_this_run": ckpt.step - first, "device": str(dev),
             "precision": cfg.precision, "seconds": round(time.perf_counter() - began, 1), "last_terms": terms,
-            "denoise_last_100": float(np.mean(ckpt.losses[-100:])) if ckpt.losses else None}
+            f"{tracked}_last_100": float(np.mean(ckpt.losses[-100:])) if ckpt.losses else None}
 
 
 def parse_shares(shares: tuple[str, ...]) -> dict[str, float]:

@@ -171,8 +171,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.episodes:
             spec = checkpoint.load(args.checkpoint).info.depth_spec
             env = EnvConfig(objects=select_kinds(args.objects), depth=spec)
-            spec = RoundSpec(learner=args.learner, horizon=0 if args.no_chunks else RoundSpec.horizon)
-            collect_round(args.store, env, spec, episodes=args.episodes, seed=args.seed, workers=args.workers)
+            labelling = RoundSpec(learner=args.learner, horizon=0 if args.no_chunks else RoundSpec.horizon)
+            collect_round(args.store, env, labelling, episodes=args.episodes, seed=args.seed,
+                          workers=args.workers)
         print(json.dumps(measure(args.checkpoint, args.store), indent=1))
     except (ValueError, OSError) as exc:  # an unknown kind is an ObjectError, a ValueError
         print(f"error: {exc}", file=sys.stderr)
