@@ -78,6 +78,11 @@ def test_a_zero_rate_is_refused_in_one_line(module):
     assert done.returncode == 2 and done.stderr.strip() == f"{module}: --rate must be positive, got 0"
 
 
+def test_a_late_share_outside_0_1_is_refused_in_one_line():
+    done = _cli("hil_sim", "--late-share", "1", timeout=60)
+    assert done.returncode == 2 and done.stderr.strip() == "hil_sim: --late-share must be in [0, 1), got 1"
+
+
 @pytest.mark.parametrize("module", ["hil_sim", "hil_sim.demo"])
 def test_a_model_that_is_not_onnx_is_named_before_any_run(module, tmp_path):
     bad = tmp_path / "x.onnx"

@@ -39,6 +39,15 @@ def test_rate_not_held(kw):
     assert not report.rate_held(report.build(rows, cmds, rate_hz=10.0, usage=report.Usage(0, 0)))
 
 
+def test_a_run_may_allow_a_share_of_late_ticks_and_no_more():
+    def doc(late):
+        rows, cmds = ticks(late=late)  # 101 ticks: a share of 0.01 allows one
+        return report.build(rows, cmds, rate_hz=10.0, usage=report.Usage(0, 0), late_share=0.01)
+
+    assert report.rate_held(doc((5,))) and "1 late (up to 1 allowed) -> HELD" in report.table(doc((5,)))
+    assert not report.rate_held(doc((5, 6)))
+
+
 def test_table_and_histogram(tmp_path):
     rows, cmds = ticks(late=(3, 7), missing=(7,))  # a late tick whose command never came is marked too
     doc = report.build(rows, cmds, rate_hz=10.0, usage=report.Usage(1, 2))
