@@ -77,7 +77,6 @@ def test_spatial_softmax_reads_where_the_peak_is():
     ({"action_horizon": 10, "head_dims": (16, 32, 64)}, "action_horizon"),
     ({"exec_horizon": 17}, "exec_horizon"),
     ({"keypoints": 0}, "keypoints"),
-    ({"rays": True, "perception": "privileged"}, "rays feed a depth perception"),
 ])
 def test_bad_config_is_refused(kwargs, match):
     with pytest.raises(StudentConfigError, match=match):

@@ -4,7 +4,6 @@ parity, and the recipe resumes without redoing finished stages."""
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -492,28 +491,6 @@ def test_a_composed_pair_acts_on_the_mean_of_its_readouts(tmp_path, capsys):
                          str(tmp_path / "head.pt"), "--out", str(tmp_path / "c.pt")]) == 2
     err = capsys.readouterr().err
     assert "--also students must see depth as --perception does: width differ" in err and err.count("\n") == 1
-
-
-def test_a_pair_where_one_reads_rays_reads_them_at_zero_weight_in_the_other(tmp_path):
-    """``compose --also`` with a partner given metric rays (``StudentConfig.rays``): the composed student reads
-    rays, and the perception fitted without them acts as it did (their weights 0 there)."""
-    from trainer.student.compose import compose
-    from trainer.student.perception import STEM_WEIGHT, add_ray_inputs
-
-    ckpts = _unlike_students(tmp_path, {"eye": "depth", "other": "depth", "head": "privileged"})
-    other = ckpts["other"]
-    add_ray_inputs(other.ema, "perception.")
-    other.ema["perception." + STEM_WEIGHT][:, -2:] = 0.1
-    other.config = dataclasses.replace(other.config, rays=True)
-    eye, rayed, head = (ckpts[name].policy() for name in ("eye", "other", "head"))
-    pair = compose(ckpts["eye"], ckpts["head"], (other,))
-    gen = torch.Generator().manual_seed(1)
-    depth, state = torch.rand(3, 3, 96, 128, generator=gen), torch.randn(3, 8, generator=gen) * 0.3
-    with torch.no_grad():
-        mean = sum(_facts_in_head_units(e, head, depth, state) for e in (eye, rayed)) / 2
-        got = pair.policy().encode(depth, state)
-    torch.testing.assert_close(got, head.fuse(state[:, :0], mean, state), atol=1e-5, rtol=1e-5)
-    assert pair.config.rays and not pair.ema["perception." + STEM_WEIGHT][:, -2:].any()
 
 
 def test_compose_refuses_a_head_that_reads_depth(tmp_path, capsys):

@@ -7,8 +7,7 @@ hand pose in the head's scaling and its last layer gives the facts in the head's
 folded into the weights). The result has ``head_features=False`` (the head reads what it was trained on:
 facts, joint state, hand pose) and exports like any depth student. ``--also`` adds more depth students of the
 same network as partners (``StudentConfig.perceptions``), each re-expressed the same way: the head reads the
-mean of all their facts. Where one of them reads metric rays (``StudentConfig.rays``), all do, the others at
-zero weight.
+mean of all their facts.
 
     python -m trainer student compose --perception DEPTH/ckpt.pt --head PRIVILEGED/ckpt.pt --out C/ckpt.pt
     python -m trainer student compose --perception A.pt --also B.pt --head PRIVILEGED/ckpt.pt --out C/ckpt.pt
@@ -25,7 +24,7 @@ from pathlib import Path
 from trainer.student import checkpoint
 from trainer.student.checkpoint import Checkpoint
 from trainer.student.model import PerceptionStudent
-from trainer.student.perception import HAND_FEATURES, add_ray_inputs
+from trainer.student.perception import HAND_FEATURES
 
 HEAD_FIELDS = ("action_horizon", "exec_horizon", "state_features", "head_dims", "step_features",
                "train_timesteps", "prediction", "state_dim", "action_dim")
@@ -40,16 +39,13 @@ def compose(perception: Checkpoint, head: Checkpoint, partners: tuple[Checkpoint
         _check_perception(eye, perception)
     if head.config.perception != "privileged":
         raise ValueError(f"--head must be a privileged student, got perception={head.config.perception!r}")
-    rays = any(eye.config.rays for eye in eyes)
-    config = dataclasses.replace(perception.config, head_features=False, perceptions=len(eyes), rays=rays,
+    config = dataclasses.replace(perception.config, head_features=False, perceptions=len(eyes),
                                  **{name: getattr(head.config, name) for name in HEAD_FIELDS})
     net = PerceptionStudent(config)
     weights = {k: v.clone() for k, v in head.ema.items()}
     for prefix, eye in zip(perception_prefixes(len(eyes)), eyes, strict=True):
         weights.update({prefix + k.removeprefix("perception."): v.clone() for k, v in eye.ema.items()
                         if k.startswith("perception.")})
-        if rays and not eye.config.rays:  # one encoder reads rays: the others read them at zero weight
-            add_ray_inputs(weights, prefix)
         _fold_hand_scaling(weights, prefix, net.perception.out_features, eye.ema, head.ema)
         _fold_facts_scaling(weights, prefix, eye.ema, head.ema)
     net.load_state_dict(weights)  # every tensor named, none left over

@@ -91,9 +91,6 @@ class StudentConfig:
     """``perception="depth"``, ``head_features`` off: depth perceptions, each its own encoder, whose facts the
     head reads averaged. Two readouts fitted apart err apart, so their mean aims closer than either
     (``trainer student compose --also``; ``docs/student.md``)."""
-    rays: bool = False
-    """``perception="depth"``: the encoder also reads the newest frame's metric X and Y in the camera frame
-    (``perception.metric_rays``), computed inside the network: the policy's inputs stay (depth, state)."""
 
     def __post_init__(self) -> None:
         if self.prediction not in PREDICTIONS:
@@ -113,8 +110,6 @@ class StudentConfig:
         if self.perceptions > 1 and (self.perception != "depth" or self.head_features):
             raise StudentConfigError("perceptions > 1 averages depth readouts for a head that reads only the "
                                      "facts: it needs perception='depth' and head_features off")
-        if self.rays and self.perception != "depth":
-            raise StudentConfigError("rays feed a depth perception's encoder: they need perception='depth'")
         if self.seen_offset and not self.hand_target:
             raise StudentConfigError("seen_offset needs hand_target (the head's offset outputs)")
         if self.object_offset and not self.hand_pose:

@@ -27,7 +27,7 @@ from trainer.student.checkpoint import Checkpoint, TrainingInfo
 from trainer.student.config import StudentConfig
 from trainer.student.ddim import training_scheduler
 from trainer.student.model import PerceptionStudent
-from trainer.student.perception import SUPERVISED_KEYPOINTS, add_ray_inputs
+from trainer.student.perception import SUPERVISED_KEYPOINTS
 from trainer.student.steps import LabelledSteps, StepBatch
 from trainer.student.train import CKPT_NAME, ema_update, lr_factor, plot_losses
 
@@ -216,10 +216,8 @@ def start(out: Path, model_cfg: StudentConfig, info: TrainingInfo, steps: Labell
         return ckpt
     if init is not None:
         source = checkpoint.load(init)
-        weights = {k: v.clone() for k, v in source.ema.items()}
-        if model_cfg.rays and not source.config.rays:
-            add_ray_inputs(weights, "perception.")
-        return Checkpoint(model_cfg, info, ema=weights, model={k: v.clone() for k, v in weights.items()})
+        return Checkpoint(model_cfg, info, ema={k: v.clone() for k, v in source.ema.items()},
+                          model={k: v.clone() for k, v in source.ema.items()})
     if steps.chunk_np is None:
         raise ValueError("a student fitted from scratch needs the expert's chunks: a perception-only fit "
                          "starts from a trained student (--init)")

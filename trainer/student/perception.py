@@ -17,7 +17,6 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from runtime.preprocess import TRAINED_STREAM, DepthSpec
 from trainer.sim.labels import READOUT
 from trainer.student.config import StudentConfig
 
@@ -25,52 +24,6 @@ SUPERVISED_KEYPOINTS = 2
 """Fine keypoints 0 and 1 are pulled to the object's and the hand's pixels."""
 HAND_FEATURES = 9
 """The hand's pose by forward kinematics (``trainer.student.model.hand_pose``): position and two axes."""
-
-
-RAY_SCALE = 2.0
-"""Metres -> ray channel values: the crop's X spans +-0.42 m at the table, so the channels sit near the depth's
-[0, 1]."""
-
-
-def metric_rays(depth: torch.Tensor, spec: DepthSpec = DepthSpec()) -> torch.Tensor:
-    """The newest frame of a normalised depth stack [B, To, H, W] as metric X, Y in the camera frame
-    [B, 2, H, W] (times ``RAY_SCALE``; 0 where there is no depth): each pixel's depth along its ray through the
-    trained stream's pinhole (``runtime.preprocess.TRAINED_STREAM``) and ``spec``'s centred crop. With them an
-    object's width in metres is a difference of two values rather than pixels times a depth the encoder must
-    learn to multiply (the unseen kinds' misses lie along the camera's line of sight, ``docs/student.md``)."""
-    newest = depth[:, -1:]
-    _, _, h, w = newest.shape
-    top, left = spec.centred_window()
-    cam = TRAINED_STREAM
-    # pixel centres of the policy image in stream pixels (the resize spreads them evenly over the crop)
-    cols = left + (torch.arange(w, dtype=torch.float32, device=depth.device) + 0.5) * (spec.crop_width / w) - 0.5
-    rows = top + (torch.arange(h, dtype=torch.float32, device=depth.device) + 0.5) * (spec.crop_height / h) - 0.5
-    ray_x = ((cols - cam.cx) / cam.fx).view(1, 1, 1, w)
-    ray_y = ((rows - cam.cy) / cam.fy).view(1, 1, h, 1)
-    metres = spec.near_m + newest.clamp(min=0.0) * (spec.far_m - spec.near_m)
-    scale = torch.where(newest >= 0, metres * RAY_SCALE, torch.zeros_like(metres))
-    return torch.cat([scale * ray_x, scale * ray_y], dim=1)
-
-
-RAY_SPEC_FIELDS = ("stream_width", "stream_height", "crop_height", "crop_width", "near_m", "far_m",
-                   "invalid_value")
-"""What ``metric_rays`` assumes of the depth a network sees: the default stream, crop and range (any
-resolution)."""
-STEM_WEIGHT = "resnet.stem.0.weight"
-
-
-def check_ray_spec(spec: DepthSpec) -> None:
-    """Refuse depth whose stream, crop or range is not the one ``metric_rays`` builds its rays for."""
-    default = DepthSpec()
-    if differ := [name for name in RAY_SPEC_FIELDS if getattr(spec, name) != getattr(default, name)]:
-        raise ValueError(f"rays are built for the default depth spec; this depth's {', '.join(differ)} differ")
-
-
-def add_ray_inputs(weights: dict[str, torch.Tensor], prefix: str) -> None:
-    """A perception's weights (under ``prefix``) trained without rays, given the two ray channels at zero
-    weight: the same function, which a fit then teaches to read them."""
-    stem = weights[prefix + STEM_WEIGHT]
-    weights[prefix + STEM_WEIGHT] = torch.cat([stem, stem.new_zeros(stem.shape[0], 2, *stem.shape[2:])], dim=1)
 
 
 def _groups(channels: int) -> int:
@@ -150,8 +103,7 @@ class Perception(nn.Module):
     def __init__(self, config: StudentConfig) -> None:
         super().__init__()
         width = config.width
-        self.rays = config.rays
-        self.resnet = ResNet18(config.obs_horizon + 2 * config.rays, width, config.keypoints)
+        self.resnet = ResNet18(config.obs_horizon, width, config.keypoints)
         self.fine = SpatialSoftmax(2 * width, config.fine_keypoints)
         self.out_features = self.resnet.out_features + self.fine.out_features + 8 * width
         self.readout = nn.Sequential(nn.Linear(self.out_features + HAND_FEATURES, 256), nn.ReLU(),
@@ -159,8 +111,6 @@ class Perception(nn.Module):
 
     def forward(self, depth: torch.Tensor, hand: torch.Tensor) -> tuple[torch.Tensor, ...]:
         r = self.resnet
-        if self.rays:
-            depth = torch.cat([depth, metric_rays(depth)], dim=1)
         stride8 = r.blocks[:4](r.stem(depth))  # stages 1 and 2
         last = r.blocks[4:](stride8)
         fine = self.fine.locate(stride8)

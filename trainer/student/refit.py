@@ -3,7 +3,7 @@ recipe (``trainer student readout --store``), with chosen shares of each batch p
 fit stage alone. The shipped file's partner readout (``trainer student compose --also``) is one.
 
     python -m trainer student refit --init REC/student.pt --stores A.zarr B.zarr --shares seen=0.45 \\
-        squares=0.2 --steps 1200 --shift-px 6 --near-loss 1 --precision bf16 [--perception-only] [--rays] --out DIR
+        squares=0.2 --steps 1200 --shift-px 6 --near-loss 1 --precision bf16 [--perception-only] --out DIR
 
 The network and the depth it sees are the init's (``python -m export.recover`` gives a shipped file's); the
 fit's settings are ``DistillConfig``'s. ``--perception-only`` fits the readout alone, which is all a partner
@@ -15,7 +15,6 @@ from ``DIR``.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -27,15 +26,13 @@ from trainer.dataset import DatasetError
 from trainer.student import checkpoint
 from trainer.student.checkpoint import TrainingInfo
 from trainer.student.distill import DistillConfig, device, distill
-from trainer.student.perception import check_ray_spec
 from trainer.student.steps import LabelledSteps
 
 
-def refit(init: Path, stores: list[Path], out: Path, cfg: DistillConfig, rays: bool = False) -> dict:
-    """Fit ``init``'s student on ``stores`` into ``out`` (reading metric rays beside the depth with ``rays``);
-    the fit's summary."""
+def refit(init: Path, stores: list[Path], out: Path, cfg: DistillConfig) -> dict:
+    """Fit ``init``'s student on ``stores`` into ``out``; the fit's summary."""
     source = checkpoint.load(init)
-    model = dataclasses.replace(source.config, rays=source.config.rays or rays)
+    model = source.config
     if model.perception != "depth" or model.perceptions != 1:
         raise ValueError(f"--init must be a depth student of one perception, got perception="
                          f"{model.perception!r}, perceptions={model.perceptions}")
@@ -43,8 +40,6 @@ def refit(init: Path, stores: list[Path], out: Path, cfg: DistillConfig, rays: b
                          chunks=not cfg.perception_only, device=device())
     if data.spec != source.info.depth_spec:
         raise ValueError(f"the stores hold depth as {data.spec}, --init sees {source.info.depth_spec}")
-    if model.rays:
-        check_ray_spec(data.spec)
     info = TrainingInfo(depth_spec=data.spec, action_scale=source.info.action_scale,
                         control_rate_hz=source.info.control_rate_hz, trained=True,
                         data={"refit": {"init": str(init), "stores": [str(s) for s in stores],
@@ -58,15 +53,13 @@ def main(argv: list[str] | None = None) -> int:
                    "network and depth)")
     p.add_argument("--stores", type=Path, nargs="+", required=True, help="labelled stores to fit on")
     p.add_argument("--out", type=Path, required=True, help="folder for ckpt.pt and loss.png (resumed)")
-    p.add_argument("--rays", action="store_true", help="the encoder also reads the newest frame's metric "
-                   "X, Y (an init without them starts at zero weight)")
     p.add_argument("--threads", type=int, default=0, help="torch threads on the CPU (0 = torch's default)")
     add_dataclass_args(p, DistillConfig)
     args = p.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
     try:
-        summary = refit(args.init, args.stores, args.out, from_args(DistillConfig, args), args.rays)
+        summary = refit(args.init, args.stores, args.out, from_args(DistillConfig, args))
     except (ValueError, OSError, DatasetError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
