@@ -1,13 +1,13 @@
 """Can geometry read an elongated object's grasp direction where the readout cannot? (issue 42: the lemon)
 
-The shipped pair reads the lemon's grasp direction 9-12 degrees off (median) at every hand height, p90 20-37,
-and given the true direction it grasps 45 of 60 lemons against 36 (``research/composed_policy.py ... --objects
-lemon --true yaw``). This is the ceiling of a geometric reading: each frame's depth pixels back-projected to the
-world through the episode's own camera (intrinsics of its crop window, extrinsics as recorded), the points
-within ``--radius-cm`` of the true object centre and between the table and the object's top taken, and the
-narrow axis of their horizontal spread (the eigenvector of the smaller eigenvalue) compared with the label.
-Frames are those with the hand at least ``--above-cm`` over the object (the fingers out of the points);
-beside it the readout of ``--student`` (a depth student's or a composed pair's checkpoint) on the same frames.
+The shipped pair given the true grasp direction grasps 45 of 60 lemons against 36 as read
+(``research/composed_policy.py ... --objects lemon --true yaw``). This is the ceiling of a geometric reading:
+each frame's depth pixels back-projected to the world through the episode's own camera (intrinsics of its crop
+window, extrinsics as recorded), the points within ``--radius-cm`` of the true object centre and between the
+table and the object's top taken, and the narrow axis of their horizontal spread (the eigenvector of the
+smaller eigenvalue) compared with the label. Frames are those with the hand at least ``--above-cm`` over the
+object (the fingers out of the points); beside it the readout of ``--student`` (a depth student or a composed
+pair's checkpoint) on the same frames.
 
     PYTHONPATH=. python research/geometric_yaw.py STORE.zarr [--student CKPT] [--kinds lemon bread starfruit]
 """
@@ -97,7 +97,8 @@ def main() -> None:
         for i, k in enumerate(store.kinds):
             if k != kind:
                 continue
-            pairs = episode_errors(store.episode(i), store.depth_spec, args.radius_cm / 100, args.above_cm / 100)
+            pairs = episode_errors(store.episode(i), store.depth_spec, args.radius_cm / 100,
+                                   args.above_cm / 100)
             if not pairs:
                 continue
             geo += [e for _, e in pairs]
@@ -106,7 +107,8 @@ def main() -> None:
                 start = int(ends[i - 1]) if i else 0
                 ours += [float(read[start + t]) for t, _ in pairs]
         row = {"frames": len(geo), "episodes": len(bias), "geometric_median": np.median(geo),
-               "geometric_p90": np.percentile(geo, 90), "geometric_episode_median_p90": np.percentile(bias, 90)}
+               "geometric_p90": np.percentile(geo, 90),
+               "geometric_episode_median_p90": np.percentile(bias, 90)}
         if ours:
             row |= {"readout_median": np.median(ours), "readout_p90": np.percentile(ours, 90)}
         result[kind] = {k: round(float(v), 2) for k, v in row.items()}
