@@ -26,23 +26,16 @@ from hil_sim.world import TABLE_Z
 from trainer.dataset import DEPTH_SCALE, DemoStore
 from trainer.sim.labels import GRASP_YAW, OFFSET, SIZE
 from trainer.student.model import hand_pose
+from trainer.student.readout import perceive_store, yaw_errors
 
 
-def narrow_axis_deg(points_xy: np.ndarray) -> float:
-    """Direction (degrees, mod 180) of the smaller principal axis of a horizontal point spread."""
+def narrow_axis(points_xy: np.ndarray) -> np.ndarray:
+    """(cos 2p, sin 2p) of the direction p of the smaller principal axis of a horizontal point spread, as the
+    grasp-direction label gives it."""
     centred = points_xy - points_xy.mean(axis=0)
     _, vectors = np.linalg.eigh(centred.T @ centred)
-    return float(np.degrees(np.arctan2(vectors[1, 0], vectors[0, 0]))) % 180.0
-
-
-def label_deg(yaw: np.ndarray) -> float:
-    """The label's (cos 2p, sin 2p) as p in degrees, mod 180."""
-    return float(np.degrees(np.arctan2(yaw[1], yaw[0])) / 2.0) % 180.0
-
-
-def apart_deg(a: float, b: float) -> float:
-    d = abs(a - b) % 180.0
-    return min(d, 180.0 - d)
+    p = np.arctan2(vectors[1, 0], vectors[0, 0])
+    return np.array([np.cos(2 * p), np.sin(2 * p)])
 
 
 def world_points(depth_mm: np.ndarray, intr: Intrinsics, extrinsics: np.ndarray) -> np.ndarray:
@@ -68,14 +61,14 @@ def episode_errors(ep: dict, spec, radius: float, above: float) -> list[tuple[in
         low, high = centre[2] - half_height + 0.008, centre[2] + half_height + 0.005
         mine = points[near & (points[:, 2] > low) & (points[:, 2] < high)]
         if len(mine) >= 8:
-            out.append((t, apart_deg(narrow_axis_deg(mine[:, :2]), label_deg(labels[GRASP_YAW]))))
+            estimate = labels.copy()
+            estimate[GRASP_YAW] = narrow_axis(mine[:, :2])
+            out.append((t, float(yaw_errors(estimate[None], labels[None])[0])))
     return out
 
 
 def readout_errors(student: Path, store: Path) -> np.ndarray:
     """The student's grasp-direction error (degrees) on every frame of ``store``."""
-    from trainer.student.readout import perceive_store, yaw_errors
-
     facts, _, steps = perceive_store(student, store)
     return yaw_errors(facts, steps.labels_np[:, :facts.shape[1]])
 
@@ -90,7 +83,6 @@ def main() -> None:
     args = p.parse_args()
     store = DemoStore.open(args.store)
     read = readout_errors(args.student, args.store) if args.student else None
-    ends = store.episode_ends
     result = {}
     for kind in args.kinds:
         geo, ours, bias = [], [], []
@@ -104,7 +96,7 @@ def main() -> None:
             geo += [e for _, e in pairs]
             bias.append(float(np.median([e for _, e in pairs])))
             if read is not None:
-                start = int(ends[i - 1]) if i else 0
+                start = store.episode_slice(i).start
                 ours += [float(read[start + t]) for t, _ in pairs]
         row = {"frames": len(geo), "episodes": len(bias), "geometric_median": np.median(geo),
                "geometric_p90": np.percentile(geo, 90),
