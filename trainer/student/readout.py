@@ -162,6 +162,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=30_000, help="first episode seed (apart from the recipe's)")
     p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--wrist-noise", type=float, default=EnvConfig.wrist_noise,
+                   help="uniform +- turn of the wrist's home angle at reset, rad: frames of a turned hand")
     p.add_argument("--no-chunks", action="store_true",
                    help="label the frames alone, not with the expert's action chunks from each state (its "
                         "lookahead is ~3/4 of an episode's time): a store for `trainer student refit "
@@ -170,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.episodes:
             spec = checkpoint.load(args.checkpoint).info.depth_spec
-            env = EnvConfig(objects=select_kinds(args.objects), depth=spec)
+            env = EnvConfig(objects=select_kinds(args.objects), depth=spec, wrist_noise=args.wrist_noise)
             labelling = RoundSpec(learner=args.learner, horizon=0 if args.no_chunks else RoundSpec.horizon)
             collect_round(args.store, env, labelling, episodes=args.episodes, seed=args.seed,
                           workers=args.workers)
