@@ -170,6 +170,8 @@ def main(argv: list[str] | None = None) -> int:
                         "--perception-only`")
     args = p.parse_args(argv)
     try:
+        if args.wrist_noise < 0:
+            raise ValueError(f"--wrist-noise must be >= 0, got {args.wrist_noise}")
         if args.episodes:
             spec = checkpoint.load(args.checkpoint).info.depth_spec
             env = EnvConfig(objects=select_kinds(args.objects), depth=spec, wrist_noise=args.wrist_noise)
