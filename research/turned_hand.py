@@ -1,0 +1,117 @@
+"""Does the readout read a turned hand worse, and do grasps that need a large wrist turn fail? (issue 42)
+
+The fingers close along the hand's closing axis, which at the home wrist lies across the camera's line of
+sight; an elongated object needs a turn of up to 90 degrees (the fingers are symmetric: the nearer way
+round), a round one none. Two measurements:
+
+``readout STORE --student CKPT``: the student's horizontal offset error near the object (hand within 5 cm of
+it horizontally and 6 cm above it, ``readout.NEAR_M``) by how far the hand is turned from the home wrist,
+per kind. A store collected with ``trainer student readout --wrist-noise 1.57`` and the expert driving (it
+keeps a round object's wrist as it starts) turns the hand independently of the object: the effect of the
+turn alone.
+
+``success RESULT.json ... --kinds lemon bread``: the episodes of ``trainer evaluate`` results (or of
+``research/composed_policy.py``'s, seeds 10000.. one kind) by the turn their object needs from the home
+wrist, re-drawn from each episode's seed as ``hil_sim.world.World.reset`` draws it.
+
+    PYTHONPATH=. python research/turned_hand.py readout STORE.zarr --student CKPT
+    PYTHONPATH=. python research/turned_hand.py success A.json [B.json ...] --kinds lemon bread
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from hil_sim.world import WORKSPACE_X, WORKSPACE_Y
+from trainer.dataset import DemoStore
+from trainer.sim.labels import OFFSET
+from trainer.sim.rollout import schedule
+from trainer.student.model import hand_pose
+from trainer.student.readout import offset_errors, perceive_store
+
+BINS = ((0, 15), (15, 30), (30, 45), (45, 60), (60, 75), (75, 90.001))
+"""Turns, degrees."""
+HOME_CLOSING_YAW = np.pi / 2
+"""The home wrist's closing axis lies along the base frame's y (``World.finger_positions`` at ``HOME_Q``)."""
+
+
+def turn_from_home(yaw: np.ndarray) -> np.ndarray:
+    """|turn| (degrees, 0..90) from the home closing axis to a closing axis at ``yaw`` (modulo pi)."""
+    return np.degrees(np.abs((yaw - HOME_CLOSING_YAW + np.pi / 2) % np.pi - np.pi / 2))
+
+
+def needed_turn(seed: int) -> float:
+    """The turn an episode's object needs: its narrow axis lies at its yaw + 90 degrees, drawn third after its
+    place (``World.reset``)."""
+    rng = np.random.default_rng(seed)
+    rng.uniform(*WORKSPACE_X), rng.uniform(*WORKSPACE_Y)
+    return float(turn_from_home(np.array(rng.uniform(-np.pi, np.pi) + np.pi / 2)))
+
+
+def readout_by_turn(store_path: Path, student: Path) -> dict:
+    """Median horizontal offset error (cm) near the object by the hand's turn, over all kinds and per kind."""
+    facts, _, steps = perceive_store(student, store_path)
+    labels = steps.labels_np[:, :facts.shape[1]]
+    store = DemoStore.open(store_path)
+    episodes = [store.episode(i) for i in range(store.n_episodes)]
+    state = torch.from_numpy(np.concatenate([e["state"] for e in episodes]).astype(np.float32))
+    closing = hand_pose(state)[:, 6:8].numpy()
+    turn = turn_from_home(np.arctan2(closing[:, 1], closing[:, 0]))
+    error, near = offset_errors(facts, labels)
+    near &= -labels[:, OFFSET][:, 2] < 0.06
+    horizontal = np.linalg.norm(error[:, :2], axis=1)
+    kinds = np.concatenate([[e["kind"]] * len(e["state"]) for e in episodes])
+    rows = {}
+    for kind in ["all", *sorted(set(kinds))]:
+        mine = near & ((kinds == kind) if kind != "all" else True)
+        rows[kind] = {f"{lo:.0f}-{hi:.0f}": _cell(horizontal[mine & (turn >= lo) & (turn < hi)])
+                      for lo, hi in BINS}
+    return rows
+
+
+def _cell(errors: np.ndarray) -> str:
+    return f"{np.median(errors):.2f} cm ({len(errors)})" if len(errors) >= 20 else f"- ({len(errors)})"
+
+
+def success_by_turn(results: list[Path], kinds: list[str]) -> dict:
+    """Grasped / episodes of ``kinds`` by the turn their object needs, over the result files."""
+    episodes = []
+    for path in results:
+        r = json.loads(path.read_text())
+        if "failed_seeds" in r:  # trainer evaluate
+            failed = {int(s) for s in r["failed_seeds"]}
+            jobs = schedule(tuple(r["objects"]), int(r["seed"]), int(r["episodes"]))
+            episodes += [(job.seed, job.seed not in failed) for job in jobs if job.kind in kinds]
+        else:  # composed_policy.py: one kind, seeds 10000..
+            episodes += [(10_000 + i, bool(ok)) for i, ok in enumerate(r["grasped"])]
+    turns = np.array([needed_turn(seed) for seed, _ in episodes])
+    grasped = np.array([ok for _, ok in episodes])
+    out = {}
+    for lo, hi in BINS:
+        mine = (turns >= lo) & (turns < hi)
+        out[f"{lo:.0f}-{hi:.0f}"] = f"{grasped[mine].sum()} / {mine.sum()}"
+    return out
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="what", required=True)
+    r = sub.add_parser("readout")
+    r.add_argument("store", type=Path)
+    r.add_argument("--student", type=Path, required=True)
+    s = sub.add_parser("success")
+    s.add_argument("results", type=Path, nargs="+")
+    s.add_argument("--kinds", nargs="+", required=True)
+    args = p.parse_args()
+    out = (readout_by_turn(args.store, args.student) if args.what == "readout"
+           else success_by_turn(args.results, args.kinds))
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
