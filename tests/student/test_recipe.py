@@ -589,6 +589,7 @@ def test_readout_episodes_start_from_a_turned_wrist_with_wrist_noise(tmp_path, c
     store = DemoStore.open(tmp_path / "s.zarr")
     wrists = [json.loads(str(r))["q0"][6] - HOME_Q[6] for r in store.root["meta/randomisation"][:]]
     assert max(np.abs(wrists)) <= 1.5 and max(np.abs(wrists)) > 0.05  # the default draws within 0.05
+    assert store.attrs["wrist_noise"] == 1.5
     capsys.readouterr()
     assert readout_main([*args, "-1"]) == 2
     err = capsys.readouterr().err.strip()
