@@ -575,27 +575,6 @@ def test_readout_refuses_an_unknown_kind_in_one_line(tmp_path, capsys):
     assert err.startswith("error: unknown object kind 'dragonfruit'") and "\n" not in err
 
 
-def test_readout_episodes_start_from_a_turned_wrist_with_wrist_noise(tmp_path, capsys):
-    """``readout --wrist-noise R``: the episodes it collects start with the wrist anywhere in +-R of home (frames
-    of a turned hand); a negative one is refused in one line."""
-    from hil_sim.world import HOME_Q
-    from trainer.student.cli import main as student_main
-    from trainer.student.readout import main as readout_main
-
-    eye = tmp_path / "eye.pt"
-    assert student_main(["init", "--out", str(eye), "--perception", "depth", *TINY]) == 0
-    args = [str(eye), "--store", str(tmp_path / "s.zarr"), "--objects", "cube", "--no-chunks", "--wrist-noise"]
-    assert readout_main([*args, "1.5", "--episodes", "3"]) == 0
-    store = DemoStore.open(tmp_path / "s.zarr")
-    wrists = [json.loads(str(r))["q0"][6] - HOME_Q[6] for r in store.root["meta/randomisation"][:]]
-    assert max(np.abs(wrists)) <= 1.5 and max(np.abs(wrists)) > 0.05  # the default draws within 0.05
-    assert store.attrs["wrist_noise"] == 1.5
-    capsys.readouterr()
-    assert readout_main([*args, "-1"]) == 2
-    err = capsys.readouterr().err.strip()
-    assert err == "error: --wrist-noise must be >= 0, got -1.0"
-
-
 def test_refit_fits_a_student_on_given_stores_from_its_own_weights(tmp_path, capsys):
     """``student refit``: the init's network and weights, fitted on the named stores, resumable; a student
     that is not a depth student of one perception is refused in one line."""

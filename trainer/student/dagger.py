@@ -107,8 +107,7 @@ def collect_round(path: Path, config: EnvConfig, spec: RoundSpec, *, episodes: i
     store = DemoStore.create(path, spec=config.depth, action_scale=config.action_scale,
                              control_rate_hz=config.control_rate_hz, labels=True, chunk_horizon=spec.horizon,
                              attrs={"teacher": "reactive", "learner": spec.learner, "beta": spec.beta,
-                                    "seed": seed, "objects": list(config.objects),
-                                    "wrist_noise": config.wrist_noise})
+                                    "seed": seed, "objects": list(config.objects)})
     kinds = config.objects
     jobs = schedule(kinds, seed, episodes, int(store.attrs["attempted"]))
     bar = tqdm(total=episodes, initial=episodes - len(jobs), desc=f"round {path.stem}", unit="ep")

@@ -162,19 +162,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=30_000, help="first episode seed (apart from the recipe's)")
     p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--workers", type=int, default=1)
-    p.add_argument("--wrist-noise", type=float, default=EnvConfig.wrist_noise,
-                   help="uniform +- turn of the wrist's home angle at reset, rad: frames of a turned hand")
     p.add_argument("--no-chunks", action="store_true",
                    help="label the frames alone, not with the expert's action chunks from each state (its "
                         "lookahead is ~3/4 of an episode's time): a store for `trainer student refit "
                         "--perception-only`")
     args = p.parse_args(argv)
     try:
-        if args.wrist_noise < 0:
-            raise ValueError(f"--wrist-noise must be >= 0, got {args.wrist_noise}")
         if args.episodes:
             spec = checkpoint.load(args.checkpoint).info.depth_spec
-            env = EnvConfig(objects=select_kinds(args.objects), depth=spec, wrist_noise=args.wrist_noise)
+            env = EnvConfig(objects=select_kinds(args.objects), depth=spec)
             labelling = RoundSpec(learner=args.learner, horizon=0 if args.no_chunks else RoundSpec.horizon)
             collect_round(args.store, env, labelling, episodes=args.episodes, seed=args.seed,
                           workers=args.workers)
