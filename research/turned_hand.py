@@ -6,9 +6,9 @@ round), a round one none. Two measurements:
 
 ``readout STORE --student CKPT``: the student's horizontal offset error near the object (hand within 5 cm of
 it horizontally and 6 cm above it, ``readout.NEAR_M``) by how far the hand is turned from the home wrist,
-per kind. A store collected with ``trainer student readout --wrist-noise 1.57`` and the expert driving (it
-keeps a round object's wrist as it starts) turns the hand independently of the object: the effect of the
-turn alone.
+per kind. A store whose episodes start from a turned wrist, the expert driving (it keeps a round object's
+wrist as it starts), turns the hand independently of the object: the effect of the turn alone. ``trainer
+student readout --wrist-noise 1.57`` made one (412c895, reverted in fb515bf).
 
 ``success RESULT.json ... --kinds lemon bread``: the episodes of ``trainer evaluate`` results (or of
 ``research/composed_policy.py``'s, seeds 10000.. one kind) by the turn their object needs from the home
