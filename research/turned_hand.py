@@ -12,7 +12,7 @@ student readout --wrist-noise 1.57`` made one (412c895, reverted in fb515bf).
 
 ``success RESULT.json ... --kinds lemon bread``: the episodes of ``trainer evaluate`` results (or of
 ``research/composed_policy.py``'s, seeds 10000.. one kind) by the turn their object needs from the home
-wrist, re-drawn from each episode's seed as ``hil_sim.world.World.reset`` draws it.
+wrist, as ``hil_sim.world.World.reset`` draws it from each episode's seed.
 
     PYTHONPATH=. python research/turned_hand.py readout STORE.zarr --student CKPT
     PYTHONPATH=. python research/turned_hand.py success A.json [B.json ...] --kinds lemon bread
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hil_sim.world import WORKSPACE_X, WORKSPACE_Y
+from hil_sim.world import World
 from trainer.dataset import DemoStore
 from trainer.sim.labels import OFFSET
 from trainer.sim.rollout import schedule
@@ -45,12 +45,9 @@ def turn_from_home(yaw: np.ndarray) -> np.ndarray:
     return np.degrees(np.abs((yaw - HOME_CLOSING_YAW + np.pi / 2) % np.pi - np.pi / 2))
 
 
-def needed_turn(seed: int) -> float:
-    """The turn an episode's object needs: its narrow axis lies at its yaw + 90 degrees, drawn third after its
-    place (``World.reset``)."""
-    rng = np.random.default_rng(seed)
-    rng.uniform(*WORKSPACE_X), rng.uniform(*WORKSPACE_Y)
-    return float(turn_from_home(np.array(rng.uniform(-np.pi, np.pi) + np.pi / 2)))
+def needed_turn(world: World, kind: str, seed: int) -> float:
+    """The turn an episode's object needs: its narrow axis lies at its yaw + 90 degrees."""
+    return float(turn_from_home(np.array(world.reset(kind, seed).object_yaw + np.pi / 2)))
 
 
 def readout_by_turn(store_path: Path, student: Path) -> dict:
@@ -86,11 +83,13 @@ def success_by_turn(results: list[Path], kinds: list[str]) -> dict:
         if "failed_seeds" in r:  # trainer evaluate
             failed = {int(s) for s in r["failed_seeds"]}
             jobs = schedule(tuple(r["objects"]), int(r["seed"]), int(r["episodes"]))
-            episodes += [(job.seed, job.seed not in failed) for job in jobs if job.kind in kinds]
-        else:  # composed_policy.py: one kind, seeds 10000..
-            episodes += [(10_000 + i, bool(ok)) for i, ok in enumerate(r["grasped"])]
-    turns = np.array([needed_turn(seed) for seed, _ in episodes])
-    grasped = np.array([ok for _, ok in episodes])
+            episodes += [(job.kind, job.seed, job.seed not in failed) for job in jobs if job.kind in kinds]
+        else:  # composed_policy.py run on one kind, seeds 10000..
+            (kind,) = r["by_kind"]
+            episodes += [(kind, 10_000 + i, bool(ok)) for i, ok in enumerate(r["grasped"]) if kind in kinds]
+    world = World(tuple(kinds))
+    turns = np.array([needed_turn(world, kind, seed) for kind, seed, _ in episodes])
+    grasped = np.array([ok for _, _, ok in episodes])
     out = {}
     for lo, hi in BINS:
         mine = (turns >= lo) & (turns < hi)
