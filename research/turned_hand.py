@@ -54,15 +54,13 @@ def readout_by_turn(store_path: Path, student: Path) -> dict:
     """Median horizontal offset error (cm) near the object by the hand's turn, over all kinds and per kind."""
     facts, _, steps = perceive_store(student, store_path)
     labels = steps.labels_np[:, :facts.shape[1]]
-    store = DemoStore.open(store_path)
-    episodes = [store.episode(i) for i in range(store.n_episodes)]
-    state = torch.from_numpy(np.concatenate([e["state"] for e in episodes]).astype(np.float32))
-    closing = hand_pose(state)[:, 6:8].numpy()
+    closing = hand_pose(torch.from_numpy(steps.state_np))[:, 6:8].numpy()
     turn = turn_from_home(np.arctan2(closing[:, 1], closing[:, 0]))
     error, near = offset_errors(facts, labels)
     near &= -labels[:, OFFSET][:, 2] < 0.06
     horizontal = np.linalg.norm(error[:, :2], axis=1)
-    kinds = np.concatenate([[e["kind"]] * len(e["state"]) for e in episodes])
+    store = DemoStore.open(store_path)
+    kinds = np.repeat(store.kinds, store.episode_lengths)
     rows = {}
     for kind in ["all", *sorted(set(kinds))]:
         mine = near & ((kinds == kind) if kind != "all" else True)
