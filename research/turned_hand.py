@@ -14,8 +14,14 @@ student readout --wrist-noise 1.57`` made one (412c895, reverted in fb515bf).
 ``research/composed_policy.py``'s, seeds 10000.. one kind) by the turn their object needs from the home
 wrist, as ``hil_sim.world.World.reset`` draws it from each episode's seed.
 
+``close POLICY --kinds lemon --min-turn 75 --episodes 40``: the policy run (clean depth) on the first seeds
+from 10000 whose object needs at least that turn, and where its fingers were at its first close
+(``research/m0_failures.py``'s ``FirstClose``): the object's offset across the pads (they forgive ~0.7 cm
+there) and along the closing axis, by turn. A head that drifts sideways while its wrist turns shows it here.
+
     PYTHONPATH=. python research/turned_hand.py readout STORE.zarr --student CKPT
     PYTHONPATH=. python research/turned_hand.py success A.json [B.json ...] --kinds lemon bread
+    PYTHONPATH=. python research/turned_hand.py close oracle:CKPT --kinds lemon --min-turn 75 --episodes 40
 """
 
 from __future__ import annotations
@@ -28,9 +34,12 @@ import numpy as np
 import torch
 
 from hil_sim.world import World
+from research.m0_failures import FirstClose
 from trainer.dataset import DemoStore
+from trainer.policies import depth_spec, make_policy
+from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.labels import OFFSET
-from trainer.sim.rollout import schedule
+from trainer.sim.rollout import Job, run_episode, schedule
 from trainer.student.model import hand_pose
 from trainer.student.readout import offset_errors, perceive_store
 
@@ -95,6 +104,32 @@ def success_by_turn(results: list[Path], kinds: list[str]) -> dict:
     return out
 
 
+def close_by_turn(spec: str, kinds: list[str], min_turn: float, episodes: int) -> dict:
+    """Per kind and turn bin: grasped / episodes, and the median offsets (cm) across the pads and along the
+    closing axis at the first close, of the grasps and of the misses apart."""
+    env = GraspEnv(EnvConfig(objects=tuple(kinds), randomise=True, depth=depth_spec(spec)))
+    policy, out = FirstClose(make_policy(spec), env), {}
+    for kind in kinds:
+        world, rows = World((kind,)), []
+        seeds = (s for s in range(10_000, 10_000 + 100 * episodes) if needed_turn(world, kind, s) >= min_turn)
+        for seed in [next(seeds) for _ in range(episodes)]:
+            success = run_episode(env, policy, Job(seed, kind)).success
+            rows.append((needed_turn(world, kind, seed), success, *policy.close[2][:2]))
+        table = np.array(rows, float)
+        out[kind] = {f"{lo:.0f}-{hi:.0f}": _close_cell(table[(table[:, 0] >= lo) & (table[:, 0] < hi)])
+                     for lo, hi in BINS if lo + 15 > min_turn}
+    return out
+
+
+def _close_cell(rows: np.ndarray) -> str:
+    def medians(chosen: np.ndarray) -> str:
+        return f"{np.nanmedian(chosen[:, 3]):.2f} / {np.nanmedian(chosen[:, 2]):.2f}" if len(chosen) else "-"
+
+    grasped = rows[:, 1] == 1
+    return (f"{int(grasped.sum())} / {len(rows)}; across / along, cm: grasped {medians(rows[grasped])}, "
+            f"missed {medians(rows[~grasped])}")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="what", required=True)
@@ -104,9 +139,18 @@ def main() -> None:
     s = sub.add_parser("success")
     s.add_argument("results", type=Path, nargs="+")
     s.add_argument("--kinds", nargs="+", required=True)
+    c = sub.add_parser("close")
+    c.add_argument("policy", help="oracle:CKPT | reactive | student:ONNX")
+    c.add_argument("--kinds", nargs="+", required=True)
+    c.add_argument("--min-turn", type=float, default=75.0, help="degrees")
+    c.add_argument("--episodes", type=int, default=40, help="per kind")
     args = p.parse_args()
-    out = (readout_by_turn(args.store, args.student) if args.what == "readout"
-           else success_by_turn(args.results, args.kinds))
+    if args.what == "readout":
+        out = readout_by_turn(args.store, args.student)
+    elif args.what == "success":
+        out = success_by_turn(args.results, args.kinds)
+    else:
+        out = close_by_turn(args.policy, args.kinds, args.min_turn, args.episodes)
     print(json.dumps(out, indent=1))
 
 
