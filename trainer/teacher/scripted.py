@@ -99,7 +99,12 @@ class ScriptedExpert:
         goal, rot_goal, gripper = self._plan(priv, ee, rot)
         step = self.config.max_step_m if self._phase == Phase.APPROACH else self.config.fine_step_m
         waypoint = ee + _clip_norm(goal - ee, step)
-        q_ik = self._kin.solve(priv[:9], waypoint, rot_goal, self.config)
+        # Joint 7 alone turns the hand: the IK keeps the hand's yaw, and the turn is added to joint 7. Asked
+        # for the turn, damped least squares shares it among joints 1, 3, 5 and 7 (all near vertical here),
+        # and the others' share, scaled down with them, slows and bends the hand's path while it turns.
+        now = fingers_yaw(rot)
+        q_ik = self._kin.solve(priv[:9], waypoint, _top_down(now), self.config)
+        q_ik[6] -= _wrap(fingers_yaw(rot_goal) - now)  # d(yaw)/d(q7) = -1: the hand's z points down
         delta = (q_ik - q) / self._scale
         # Scale joints 1-6 together, not one by one: clipping them separately bends the hand's path.
         # Joint 7 turns the hand about its own axis, which holds the grasp site, so it may clip alone.
@@ -204,6 +209,10 @@ def nearest_turn(now: float, yaw: float) -> float:
     """The closing yaw equivalent to ``yaw`` (the fingers are symmetric: modulo pi) nearest the hand's
     ``now``."""
     return now + (yaw - now + np.pi / 2) % np.pi - np.pi / 2
+
+
+def _wrap(angle: float) -> float:
+    return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
 def _top_down(yaw: float) -> np.ndarray:
