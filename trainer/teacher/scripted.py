@@ -3,8 +3,9 @@
 Phases: approach (10 cm above the grasp point, hand turned so the fingers close across the object's
 narrowest horizontal axis), descend, close, lift (object centre to p_target), hold. Each control step
 solves damped-least-squares inverse kinematics on MuJoCo Jacobians of a kinematic copy of the arm for a
-waypoint at most ``max_step_m`` from the hand, and emits the env action a = (q_ik - q) / s, scaled down
-as a whole to fit [-1, 1], plus the gripper command: the same 8-d actions a learned teacher emits at 10 Hz.
+waypoint at most ``max_step_m`` from the hand, the hand's yaw kept (joint 7 alone turns it), and emits the
+env action a = (q_ik - q) / s, joints 1-6 scaled down together to fit [-1, 1], plus the gripper command: the
+same 8-d actions a learned teacher emits at 10 Hz.
 
 ``ReactiveExpert`` is the same planner without phase memory (its phase is read off each observation): the
 labeller of the PPO teacher's DAgger warm start (``trainer.teacher.warmstart``).
