@@ -61,7 +61,7 @@ def test_grasps_thin_kinds_low_in_the_fingers():
 def test_the_hand_is_over_the_object_before_it_has_turned():
     """Joint 7 alone turns the hand: a lemon that needs an 88 degree turn, the hand over it (within 5 mm) by
     the time 30 degrees of the turn are left. When the IK shared the turn among joints 1, 3, 5 and 7, it was
-    still 1.75 cm off there, and imitating heads closed 1-3 cm across the pads."""
+    still 1.6 cm off there, and imitating heads closed 1-3 cm across the pads."""
     env, expert = GraspEnv(EnvConfig(objects=("lemon",), render_depth=False)), ReactiveExpert()
     kin, rows = ArmKinematics(), []
 
