@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from itertools import islice
 from pathlib import Path
 
 import numpy as np
@@ -111,10 +112,10 @@ def close_by_turn(spec: str, kinds: list[str], min_turn: float, episodes: int) -
     policy, out = FirstClose(make_policy(spec), env), {}
     for kind in kinds:
         world, rows = World((kind,)), []
-        seeds = (s for s in range(10_000, 10_000 + 100 * episodes) if needed_turn(world, kind, s) >= min_turn)
-        for seed in [next(seeds) for _ in range(episodes)]:
+        turns = ((seed, needed_turn(world, kind, seed)) for seed in range(10_000, 10_000 + 100 * episodes))
+        for seed, turn in islice(((s, t) for s, t in turns if t >= min_turn), episodes):
             success = run_episode(env, policy, Job(seed, kind)).success
-            rows.append((needed_turn(world, kind, seed), success, *policy.close[2][:2]))
+            rows.append((turn, success, *policy.close[2][:2]))
         table = np.array(rows, float)
         out[kind] = {f"{lo:.0f}-{hi:.0f}": _close_cell(table[(table[:, 0] >= lo) & (table[:, 0] < hi)])
                      for lo, hi in BINS if lo + 15 > min_turn}

@@ -105,7 +105,7 @@ class ScriptedExpert:
         # and the others' share, scaled down with them, slows and bends the hand's path while it turns.
         now = fingers_yaw(rot)
         q_ik = self._kin.solve(priv[:9], waypoint, _top_down(now), self.config)
-        q_ik[6] -= _wrap(fingers_yaw(rot_goal) - now)  # d(yaw)/d(q7) = -1: the hand's z points down
+        q_ik[6] -= nearest_turn(now, fingers_yaw(rot_goal)) - now  # d(yaw)/d(q7) = -1: z points down
         delta = (q_ik - q) / self._scale
         # Scale joints 1-6 together, not one by one: clipping them separately bends the hand's path.
         # Joint 7 turns the hand about its own axis, which holds the grasp site, so it may clip alone.
@@ -210,10 +210,6 @@ def nearest_turn(now: float, yaw: float) -> float:
     """The closing yaw equivalent to ``yaw`` (the fingers are symmetric: modulo pi) nearest the hand's
     ``now``."""
     return now + (yaw - now + np.pi / 2) % np.pi - np.pi / 2
-
-
-def _wrap(angle: float) -> float:
-    return (angle + np.pi) % (2 * np.pi) - np.pi
 
 
 def _top_down(yaw: float) -> np.ndarray:
