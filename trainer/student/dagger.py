@@ -21,7 +21,8 @@ from trainer.dataset import DemoStore, EpisodeRecord
 from trainer.policies import Observation, make_policy
 from trainer.sim.env import HAND_POSITION, EnvConfig, GraspEnv
 from trainer.sim.labels import frame_labels
-from trainer.sim.rollout import Job, in_workers, schedule, start_episode
+from trainer.sim.rollout import Job, in_workers, observe, schedule, start_episode
+from trainer.sim.sensors import Sensor, make_sensor
 from trainer.teacher.scripted import ReactiveExpert
 
 
@@ -38,6 +39,10 @@ class RoundSpec:
     stall_steps: int = 10
     """A learner episode ends once the hand moved less than ``stall_m`` over this many steps."""
     stall_m: float = 0.002
+    sensor: str = "clean"
+    """What the learner sees (``trainer.sim.sensors``: ``ddg``, ``stereo`` ...); other than ``clean``, the
+    store keeps its frames as ``data/depth_sensor`` beside the clean ones, and a fit reads them with
+    ``--depth-source sensor``."""
 
 
 def chunks_ahead(actions: np.ndarray, horizon: int) -> np.ndarray:
@@ -46,25 +51,28 @@ def chunks_ahead(actions: np.ndarray, horizon: int) -> np.ndarray:
     return actions[index]
 
 
-def labelled_episode(env: GraspEnv, expert: ReactiveExpert, learner, job: Job,
-                     spec: RoundSpec) -> tuple[EpisodeRecord, bool]:
+def labelled_episode(env: GraspEnv, expert: ReactiveExpert, learner, job: Job, spec: RoundSpec,
+                     sensor: Sensor | None = None) -> tuple[EpisodeRecord, bool]:
     """One episode of ``job`` driven by ``learner`` (None: the expert), every step labelled; returns its
-    record and whether it succeeded."""
-    info = start_episode(env, learner or expert, job)
+    record and whether it succeeded. With a ``sensor``, the learner reads its frames and the record keeps them
+    (``depth_sensor``) beside the clean ones."""
+    info = start_episode(env, learner or expert, job, (sensor,))
     expert.reset(info)
     rng = np.random.default_rng([job.seed, 0xDA66])
-    steps: dict[str, list] = {"depth": [], "state": [], "action": [], "labels": [], "chunk": []}
+    steps: dict[str, list] = {"depth": [], "seen": [], "state": [], "action": [], "labels": [], "chunk": []}
     hands = []
     while True:
         obs = env.observation()
         steps["labels"].append(frame_labels(env))
+        seen = info.get("depth") if sensor is None else observe(sensor, env, info.get("depth"), "none")
+        steps["seen"].append(seen)
         if learner is None:
             action = np.asarray(expert.act(obs), np.float32)
         else:
             chunk = env.lookahead(expert.act, spec.horizon) if spec.horizon else None
             if chunk is not None:
                 steps["chunk"].append(chunk)
-            action = np.asarray(learner.act(Observation(obs, info.get("depth"), info["state"])), np.float32)
+            action = np.asarray(learner.act(Observation(obs, seen, info["state"])), np.float32)
             if rng.random() < spec.beta:  # drawn at every step alike, so both label modes drive the same
                 action = chunk[0] if chunk is not None else np.asarray(expert.act(obs), np.float32)
         for key, value in (("depth", info.get("depth")), ("state", info["state"]), ("action", action)):
@@ -83,7 +91,8 @@ def labelled_episode(env: GraspEnv, expert: ReactiveExpert, learner, job: Job,
     world = env.world
     record = EpisodeRecord(depth, np.stack(steps["state"]), actions, job.kind, job.seed,
                            world.episode.crop_window, world.intr.K, world.camera_extrinsics(),
-                           world.episode.to_dict(), labels=np.stack(steps["labels"]), chunk=chunks)
+                           world.episode.to_dict(), labels=np.stack(steps["labels"]), chunk=chunks,
+                           depth_sensor=None if sensor is None else np.stack(steps["seen"]))
     return record, bool(info["success"])
 
 
@@ -92,20 +101,23 @@ _WORKER: dict = {}
 
 def _init(config: EnvConfig, spec: RoundSpec) -> None:
     _WORKER.update(env=GraspEnv(config), expert=ReactiveExpert(), spec=spec,
-                   learner=make_policy(spec.learner) if spec.learner else None)
+                   learner=make_policy(spec.learner) if spec.learner else None,
+                   sensor=None if spec.sensor == "clean" else make_sensor(spec.sensor))
 
 
 def _work(job: Job) -> tuple[EpisodeRecord, bool]:
     w = _WORKER
-    return labelled_episode(w["env"], w["expert"], w["learner"], job, w["spec"])
+    return labelled_episode(w["env"], w["expert"], w["learner"], job, w["spec"], w["sensor"])
 
 
 def collect_round(path: Path, config: EnvConfig, spec: RoundSpec, *, episodes: int, seed: int,
                   workers: int = 1) -> dict:
     """Episodes ``seed``.. (kinds in turn) into the store at ``path``, resumed where it stopped; returns the
     store's tally."""
+    make_sensor(spec.sensor)  # an unknown sensor fails here in one line, not in every worker
     store = DemoStore.create(path, spec=config.depth, action_scale=config.action_scale,
                              control_rate_hz=config.control_rate_hz, labels=True, chunk_horizon=spec.horizon,
+                             sensor=None if spec.sensor == "clean" else spec.sensor,
                              attrs={"teacher": "reactive", "learner": spec.learner, "beta": spec.beta,
                                     "seed": seed, "objects": list(config.objects)})
     kinds = config.objects

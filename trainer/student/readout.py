@@ -2,11 +2,12 @@
 frame of a labelled store it was not trained on, e.g. the next DAgger round's, which holds its own rollouts.
 
     python -m trainer student readout CKPT --store held_out.zarr [--episodes 20 --learner student:ONNX] \
-        [--objects unseen]
+        [--objects unseen] [--sensor stereo]
 
 The world forgives noise that changes from step to step far better than a constant error (a 1 cm bias in where
 the hand aims costs ~20 % of grasps), so besides per-frame errors this reports each episode's mean error
-vector, the bias the policy would act on, and the same near the object, where the grasp is decided.
+vector, the bias the policy would act on, and the same near the object, where the grasp is decided. With
+``--sensor stereo`` the frames are the stereo sensor's: the offline gate before a closed-loop cell under it.
 """
 
 from __future__ import annotations
@@ -33,21 +34,21 @@ OFF_TARGET_M = (0.007, 0.02)
 """Frames this far off the object (horizontally) are near misses: the fingers close beside it."""
 
 
-def readouts(ckpt_path: Path, store: Path, device: torch.device | str = "cpu",
-             batch: int = 512) -> tuple[np.ndarray, np.ndarray]:
+def readouts(ckpt_path: Path, store: Path, device: torch.device | str = "cpu", batch: int = 512,
+             depth_source: str = "gt") -> tuple[np.ndarray, np.ndarray]:
     """The student's readout of every frame of ``store`` and the frames' labels, both [N, READOUT], metres."""
-    facts, _, steps = perceive_store(ckpt_path, store, device, batch)
+    facts, _, steps = perceive_store(ckpt_path, store, device, batch, depth_source)
     return facts, steps.labels_np[:, :READOUT]
 
 
-def perceive_store(ckpt_path: Path, store: Path, device: torch.device | str = "cpu", batch: int = 512
-                   ) -> tuple[np.ndarray, np.ndarray, LabelledSteps]:
+def perceive_store(ckpt_path: Path, store: Path, device: torch.device | str = "cpu", batch: int = 512,
+                   depth_source: str = "gt") -> tuple[np.ndarray, np.ndarray, LabelledSteps]:
     """The student's readout of every frame of ``store`` [N, READOUT] (metres), its fine keypoints [N, K, 2]
-    ([-1, 1] image coordinates) and the store's labelled steps."""
+    ([-1, 1] image coordinates) and the store's labelled steps; ``depth_source``: ``steps.STORED``."""
     net = checkpoint.load(ckpt_path).policy().to(device)
     cfg = net.config
     steps = LabelledSteps([store], cfg.obs_horizon, cfg.action_horizon, depth=True, chunks=False,
-                          device=device)
+                          device=device, depth_source=depth_source)
     facts, keypoints = [], []
     with torch.no_grad():
         for start in range(0, len(steps), batch):
@@ -138,12 +139,22 @@ def off_target(estimate: np.ndarray, labels: np.ndarray) -> dict:
     return {"frames": int(mask.sum()), "read_share_median": _round(np.median(share))}
 
 
-def measure(ckpt_path: Path, store: Path, device: torch.device | str = "cpu") -> dict:
-    estimate, labels = readouts(ckpt_path, store, device)
+def measure(ckpt_path: Path, store: Path, device: torch.device | str = "cpu",
+            depth_source: str = "gt") -> dict:
+    estimate, labels = readouts(ckpt_path, store, device, depth_source=depth_source)
     demos = DemoStore.open(store)
-    return {"checkpoint": str(ckpt_path), "store": str(store),
+    return {"checkpoint": str(ckpt_path), "store": str(store), "depth_source": depth_source,
+            "sensor": demos.attrs.get("sensor") if depth_source == "sensor" else "clean",
             **errors(estimate, labels, demos.episode_ends),
             "near_by_kind": by_kind(estimate, labels, demos.episode_ends, demos.kinds)}
+
+
+def _source(store: Path, sensor: str) -> str:
+    """The frames to measure on: the sensor's where the store keeps them (``--sensor clean``: clean ones)."""
+    kept = DemoStore.open(store).attrs.get("sensor")
+    if sensor and sensor != "clean" and kept != sensor:
+        raise ValueError(f"{store} keeps the frames of sensor {kept!r}, not {sensor!r}")
+    return "sensor" if kept and sensor != "clean" else "gt"
 
 
 def _round(x: float) -> float:
@@ -159,6 +170,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--episodes", type=int, default=0, help="labelled episodes to collect into --store first")
     p.add_argument("--learner", default="",
                    help="who drives them: a policy spec (student:ONNX), else the expert")
+    p.add_argument("--beta", type=float, default=0.0,
+                   help="share of a learner's steps that execute the expert's action instead (DAgger's beta)")
     p.add_argument("--seed", type=int, default=30_000, help="first episode seed (apart from the recipe's)")
     p.add_argument("--objects", default="seen", help=OBJECTS_HELP)
     p.add_argument("--workers", type=int, default=1)
@@ -166,15 +179,23 @@ def main(argv: list[str] | None = None) -> int:
                    help="label the frames alone, not with the expert's action chunks from each state (its "
                         "lookahead is ~3/4 of an episode's time): a store for `trainer student refit "
                         "--perception-only`")
+    p.add_argument("--sensor", default="",
+                   help="what the learner sees while the store is collected (ddg, stereo ...: "
+                        "trainer.sim.sensors), kept beside the clean frames; the readout is then measured on "
+                        "those frames (default: a store's sensor frames if it has them, else the clean ones)")
     args = p.parse_args(argv)
+    if not 0.0 <= args.beta <= 1.0:
+        p.error(f"--beta {args.beta}: a share, between 0 and 1")
     try:
         if args.episodes:
             spec = checkpoint.load(args.checkpoint).info.depth_spec
             env = EnvConfig(objects=select_kinds(args.objects), depth=spec)
-            labelling = RoundSpec(learner=args.learner, horizon=0 if args.no_chunks else RoundSpec.horizon)
+            labelling = RoundSpec(learner=args.learner, horizon=0 if args.no_chunks else RoundSpec.horizon,
+                                  sensor=args.sensor or "clean", beta=args.beta)
             collect_round(args.store, env, labelling, episodes=args.episodes, seed=args.seed,
                           workers=args.workers)
-        print(json.dumps(measure(args.checkpoint, args.store), indent=1))
+        print(json.dumps(measure(args.checkpoint, args.store, depth_source=_source(args.store, args.sensor)),
+                         indent=1))
     except (ValueError, OSError) as exc:  # an unknown kind is an ObjectError, a ValueError
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -3,13 +3,15 @@ recipe (``trainer student readout --store``), with chosen shares of each batch p
 fit stage alone. The shipped file's partner readout (``trainer student compose --also``) is one.
 
     python -m trainer student refit --init REC/student.pt --stores A.zarr B.zarr --shares seen=0.45 \\
-        squares=0.2 --steps 1200 --shift-px 6 --near-loss 1 --precision bf16 [--perception-only] --out DIR
+        squares=0.2 --steps 1200 --shift-px 6 --near-loss 1 --precision bf16 [--perception-only] \
+        [--depth-source sensor] --out DIR
 
 The network and the depth it sees are the init's (``python -m export.recover`` gives a shipped file's); the
 fit's settings are ``DistillConfig``'s. ``--perception-only`` fits the readout alone, which is all a partner
 readout keeps, on stores whose frames are labelled without the expert's chunks (``trainer student readout
---no-chunks``, ~4x faster to collect). Writes ``DIR/ckpt.pt`` and ``DIR/loss.png``; a refit cut off resumes
-from ``DIR``.
+--no-chunks``, ~4x faster to collect). ``--depth-source sensor`` fits on the frames a sensor showed the
+learner (stores collected with ``trainer student readout --sensor ddg``, say). Writes ``DIR/ckpt.pt`` and
+``DIR/loss.png``; a refit cut off resumes from ``DIR``.
 """
 
 from __future__ import annotations
@@ -26,23 +28,25 @@ from trainer.dataset import DatasetError
 from trainer.student import checkpoint
 from trainer.student.checkpoint import TrainingInfo
 from trainer.student.distill import DistillConfig, device, distill
-from trainer.student.steps import LabelledSteps
+from trainer.student.steps import STORED, LabelledSteps
 
 
-def refit(init: Path, stores: list[Path], out: Path, cfg: DistillConfig) -> dict:
-    """Fit ``init``'s student on ``stores`` into ``out``; the fit's summary."""
+def refit(init: Path, stores: list[Path], out: Path, cfg: DistillConfig, depth_source: str = "gt") -> dict:
+    """Fit ``init``'s student on ``stores``' ``depth_source`` frames (``steps.STORED``) into ``out``; the
+    fit's summary."""
     source = checkpoint.load(init)
     model = source.config
     if model.perception != "depth" or model.perceptions != 1:
         raise ValueError(f"--init must be a depth student of one perception, got perception="
                          f"{model.perception!r}, perceptions={model.perceptions}")
     data = LabelledSteps(stores, model.obs_horizon, model.action_horizon, depth=True,
-                         chunks=not cfg.perception_only, device=device())
+                         chunks=not cfg.perception_only, device=device(), depth_source=depth_source)
     if data.spec != source.info.depth_spec:
         raise ValueError(f"the stores hold depth as {data.spec}, --init sees {source.info.depth_spec}")
     info = TrainingInfo(depth_spec=data.spec, action_scale=source.info.action_scale,
                         control_rate_hz=source.info.control_rate_hz, trained=True,
-                        data={"refit": {"init": str(init), "stores": [str(s) for s in stores],
+                        data={"depth_source": depth_source,
+                              "refit": {"init": str(init), "stores": [str(s) for s in stores],
                                         "steps": len(data), "shares": list(cfg.shares)}})
     return distill(data, out, model, cfg, info, init)
 
@@ -53,13 +57,16 @@ def main(argv: list[str] | None = None) -> int:
                    "network and depth)")
     p.add_argument("--stores", type=Path, nargs="+", required=True, help="labelled stores to fit on")
     p.add_argument("--out", type=Path, required=True, help="folder for ckpt.pt and loss.png (resumed)")
+    p.add_argument("--depth-source", choices=sorted(STORED), default="gt",
+                   help="the frames to fit on: gt (clean) or sensor (what `trainer student readout --sensor` "
+                        "showed the learner)")
     p.add_argument("--threads", type=int, default=0, help="torch threads on the CPU (0 = torch's default)")
     add_dataclass_args(p, DistillConfig)
     args = p.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
     try:
-        summary = refit(args.init, args.stores, args.out, from_args(DistillConfig, args))
+        summary = refit(args.init, args.stores, args.out, from_args(DistillConfig, args), args.depth_source)
     except (ValueError, OSError, DatasetError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -20,11 +20,15 @@ import numpy as np
 import torch
 
 from runtime.preprocess import DepthSpec, normalise
-from trainer.dataset import DemoStore, sizes
+from trainer.dataset import DEPTH_SOURCES, DemoStore, sizes
 
 
 class StepsError(ValueError):
-    """Stores the recipe cannot train on (no labels, another resolution)."""
+    """Stores the recipe cannot train on (no labels, another resolution, no frames of the depth asked)."""
+
+
+STORED = {source: DEPTH_SOURCES[source].array for source in ("gt", "sensor")}
+"""The depth sources a fit reads as stored: the clean frames, or those a sensor showed the learner."""
 
 
 @dataclass(frozen=True)
@@ -41,11 +45,20 @@ class StepBatch:
 
 class LabelledSteps:
     def __init__(self, paths: list[Path], obs_horizon: int, action_horizon: int, *, depth: bool,
-                 chunks: bool = True, device: torch.device | str = "cpu") -> None:
+                 chunks: bool = True, device: torch.device | str = "cpu", depth_source: str = "gt") -> None:
         """``chunks``: read the expert's action chunks too (every store must hold them); without, the steps
-        serve perception alone, and stores of frame labels only (a ``RoundSpec.horizon`` 0 round) will do."""
+        serve perception alone, and stores of frame labels only (a ``RoundSpec.horizon`` 0 round) will do.
+        ``depth_source``: ``gt`` (the clean frames) or ``sensor`` (what a round's ``RoundSpec.sensor``
+        showed the learner)."""
         self.device = torch.device(device)
+        if depth_source not in STORED:
+            raise StepsError(f"unknown depth source {depth_source!r}; choose one of {sorted(STORED)}")
         stores = [DemoStore.open(p) for p in paths]
+        array = STORED[depth_source]
+        for store, p in zip(stores, paths, strict=True):
+            if depth and array not in store.root:
+                raise StepsError(f"{p} keeps no {array}: collect it with a sensor (`trainer student readout "
+                                 f"--sensor`), or fit on --depth-source gt")
         parts = [self._read(store, p, action_horizon if chunks else 0)
                  for store, p in zip(stores, paths, strict=True)]
         self.spec: DepthSpec = parts[0]["spec"]
@@ -66,7 +79,7 @@ class LabelledSteps:
         if len(scales) > 1:
             raise StepsError(f"{paths} mix depth scales {sorted(scales)}")
         spill = paths[0].parent if self.device.type == "cpu" else None  # a GPU copy frees the host's at once
-        self.frames = (torch.from_numpy(_frames(stores, spill).view(np.int16)).to(self.device)
+        self.frames = (torch.from_numpy(_frames(stores, spill, array).view(np.int16)).to(self.device)
                        if depth else None)
         self.normalised = torch.from_numpy(normalise(np.arange(2 ** 16, dtype=np.uint16), scales.pop(),
                                                      self.spec)).to(self.device)
@@ -105,14 +118,14 @@ class LabelledSteps:
         return StepBatch(depth, self.state[index], self.labels[index], chunk)
 
 
-def _frames(stores: list[DemoStore], folder: Path | None) -> np.ndarray:
-    """Every store's depth frames in one uint16 array [steps, H, W], filled a zarr chunk at a time; with a
+def _frames(stores: list[DemoStore], folder: Path | None, array: str = "data/depth") -> np.ndarray:
+    """Every store's ``array`` frames in one uint16 array [steps, H, W], filled a zarr chunk at a time; with a
     ``folder``, into a file there that is unlinked at once (the space comes back when the array goes, even if
     the process is killed), else in memory. Nothing is held twice: per-store copies joined by
     ``np.concatenate`` were, and a 192 x 144 recipe's round-5 fit (250k frames, 14 GB) was killed for it on a
     24 GiB machine."""
     steps = sum(store.n_steps for store in stores)
-    shape = (steps, *stores[0].root["data/depth"].shape[1:])
+    shape = (steps, *stores[0].root[array].shape[1:])
     if folder is None:
         out = np.empty(shape, np.uint16)
     else:
@@ -120,7 +133,7 @@ def _frames(stores: list[DemoStore], folder: Path | None) -> np.ndarray:
             out = np.memmap(file, np.uint16, "w+", shape=shape)  # the mapping keeps the unlinked file alive
     at = 0
     for store in stores:
-        depth, n = store.root["data/depth"], store.n_steps
+        depth, n = store.root[array], store.n_steps
         for i in range(0, n, depth.chunks[0]):
             j = min(i + depth.chunks[0], n)
             out[at + i:at + j] = depth[i:j]
