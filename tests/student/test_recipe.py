@@ -181,6 +181,62 @@ def test_steps_of_several_stores_keep_their_frames_off_the_heap_and_in_order(tmp
     np.testing.assert_array_equal(_frames(stores, None), joined)  # in memory, as for a GPU fit
 
 
+class _Reader:
+    """A learner that records the frames it reads and holds still."""
+
+    def __init__(self) -> None:
+        self.read: list[np.ndarray] = []
+
+    def reset(self, info: dict) -> None:
+        pass
+
+    def act(self, obs) -> np.ndarray:
+        self.read.append(obs.depth.copy())
+        return np.zeros(8, np.float32)
+
+
+def test_a_round_under_a_sensor_shows_the_learner_its_frames_and_keeps_them_beside_the_clean_ones(tmp_path):
+    """``RoundSpec.sensor``: the learner acts on the sensor's frames, the record keeps exactly those as
+    ``depth_sensor``, the clean ones as ``depth``, and the sensor restarts from the episode's seed."""
+    from trainer.sim.rollout import Job
+    from trainer.sim.sensors import make_sensor
+    from trainer.student.dagger import labelled_episode
+
+    env = GraspEnv(EnvConfig(objects=("cube",), max_steps=5))
+    spec, sensor = RoundSpec(learner="reader", horizon=0, stall_steps=100), make_sensor("randnoise")
+    try:
+        runs = []
+        for _ in range(2):
+            learner = _Reader()
+            record, _ = labelled_episode(env, ReactiveExpert(), learner, Job(7, "cube"), spec, sensor)
+            runs.append(record)
+            np.testing.assert_array_equal(np.stack(learner.read), record.depth_sensor)
+        clean, _ = labelled_episode(env, ReactiveExpert(), _Reader(), Job(7, "cube"), spec)
+    finally:
+        env.close()
+    assert clean.depth_sensor is None
+    np.testing.assert_array_equal(runs[0].depth, clean.depth)
+    assert (runs[0].depth_sensor != runs[0].depth).mean() > 0.05  # randnoise moved the frames
+    np.testing.assert_array_equal(runs[0].depth_sensor, runs[1].depth_sensor)
+
+
+def test_a_fit_reads_the_sensors_frames_where_asked_and_refuses_a_store_without_them(tmp_path):
+    from trainer.student.steps import LabelledSteps, StepsError
+
+    config = EnvConfig(objects=("cube",), max_steps=4)
+    collect_round(tmp_path / "noisy.zarr", config, RoundSpec(horizon=0, sensor="randnoise"), episodes=1, seed=3)
+    collect_round(tmp_path / "clean.zarr", config, RoundSpec(horizon=0), episodes=1, seed=3)
+    noisy = DemoStore.open(tmp_path / "noisy.zarr")
+    assert noisy.attrs["sensor"] == "randnoise"
+    for source, array in (("gt", "depth"), ("sensor", "depth_sensor")):
+        steps = LabelledSteps([tmp_path / "noisy.zarr"], obs_horizon=1, action_horizon=1, depth=True,
+                              chunks=False, depth_source=source)
+        expected = normalise(noisy.episode(0)[array][2], 0.001, noisy.depth_spec)
+        np.testing.assert_array_equal(steps.batch(torch.tensor([2])).depth[0, -1].numpy(), expected)
+    with pytest.raises(StepsError, match="depth_sensor"):
+        LabelledSteps([tmp_path / "clean.zarr"], 1, 1, depth=True, chunks=False, depth_source="sensor")
+
+
 def test_training_frames_are_held_in_a_dtype_a_gpu_can_index_and_read_back_exactly(tmp_path):
     """CUDA cannot index a uint16 tensor (torch 2.11: "index_cuda" not implemented for 'UInt16'), so the
     frames are held as int16 bits; a sensor value above 32767 must still read back as itself."""
