@@ -354,11 +354,12 @@ def test_the_student_runs_on_any_device(mode):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("with_head", [False, True])
-def test_a_depth_recipe_runs_its_stages_and_measures_its_readout(tmp_path, with_head):
+@pytest.mark.parametrize(("with_head", "sensor"), [(False, "clean"), (True, "clean"), (False, "randnoise")])
+def test_a_depth_recipe_runs_its_stages_and_measures_its_readout(tmp_path, with_head, sensor):
     """The product path end to end at toy size: a depth student is exported each round (with ``--head``,
     composed with a privileged head first), drives the next round through onnxruntime, and its readout is
-    measured on frames it never trained on."""
+    measured on frames it never trained on; with ``--sensor``, every store keeps that sensor's frames and the
+    readout is measured on them."""
     from trainer.student.cli import main as student_main
     from trainer.student.recipe import main as recipe_main
 
@@ -367,14 +368,18 @@ def test_a_depth_recipe_runs_its_stages_and_measures_its_readout(tmp_path, with_
     args = ["--out", str(out), "--perception", "depth", "--demos", "2", "--rounds", "1",
             "--round-episodes", "1", "--fit-steps", "2", "--round-steps", "1", "--workers", "1",
             "--curve-episodes", "1", "--eval-episodes", "1", "--width", "8", "--head-dims", "16", "32",
-            "--state-features", "16", "--batch", "4", *(["--head", str(head)] if with_head else [])]
+            "--state-features", "16", "--batch", "4", "--sensor", sensor,
+            *(["--head", str(head)] if with_head else [])]
     assert recipe_main(args) == 0
+    kept = None if sensor == "clean" else sensor
+    assert {DemoStore.open(out / "data" / f"round{r}.zarr").attrs.get("sensor") for r in (0, 1)} == {kept}
     for r in (0, 1):
         assert (out / "fit" / f"round{r}" / "student.onnx").is_file()
         assert (out / "fit" / f"round{r}" / "composed.pt").is_file() == with_head
         readout = json.loads((out / "fit" / f"round{r}" / "readout.json").read_text())
         assert readout["frames"] > 0 and readout["all"]["offset_cm_median"] > 0
         assert set(readout["near_by_kind"]) <= set(GROUPS["seen"])
+        assert readout["depth_source"] == ("gt" if sensor == "clean" else "sensor")
     assert DemoStore.open(out / "data" / "round1.zarr").attrs["learner"].startswith("student:")
     # a round fitted elsewhere comes back without its ONNX file or held-out episodes (research/device):
     # the resume exports it again and collects nothing its measured readout no longer needs

@@ -43,6 +43,7 @@ from trainer.dataset import DatasetError, DemoStore
 from trainer.eval.success import evaluate
 from trainer.menu import command_line
 from trainer.sim.env import EnvConfig
+from trainer.sim.sensors import make_sensor
 from trainer.student import checkpoint
 from trainer.student.checkpoint import TrainingInfo
 from trainer.student.compose import compose
@@ -133,6 +134,11 @@ class RecipeConfig:
     shares: tuple[str, ...] = ()
     """``GROUP=SHARE`` items: the share of each fit's batches drawn from a group's steps, the rest from the
     others' (``DistillConfig.shares``); rounds still to come may change them."""
+    sensor: str = "clean"
+    """The depth source the student learns on (``trainer.sim.sensors``: ``ddg``, ``ddg_nograft``,
+    ``randnoise`` ...): every round's learner sees its frames, the stores keep them beside the clean ones, the
+    fits read them, and the curve and the evaluation run under it. Table II's rows are recipes that differ in
+    this alone (issue 45)."""
     ddim_steps: int = 4
     workers: int = 2
     """Rollout processes (collection and evaluation)."""
@@ -152,6 +158,10 @@ class RecipeConfig:
     def spec(self) -> DepthSpec:
         width, _, height = self.resolution.partition("x")
         return DepthSpec(out_width=int(width), out_height=int(height))
+
+    def depth_source(self) -> str:
+        """The frames the fits read (``steps.STORED``)."""
+        return "gt" if self.sensor == "clean" else "sensor"
 
     def distill(self, steps: int) -> DistillConfig:
         return DistillConfig(steps=steps, batch=self.batch, lr=self.lr, shift_px=self.shift_px,
@@ -201,7 +211,7 @@ class Recipe:
             return
         learner = "" if r == 0 else self.learner(r - 1)
         spec = RoundSpec(learner=learner, beta=c.beta * 0.5 ** (r - 1) if r else 0.0,
-                         horizon=c.student().action_horizon)
+                         horizon=c.student().action_horizon, sensor=c.sensor)
         episodes = c.demos if r == 0 else c.round_episodes
         env = self.env if r == 0 or not c.round_objects else replace(self.env,
                                                                     objects=select_kinds(c.round_objects))
@@ -213,7 +223,8 @@ class Recipe:
     def hover(self) -> None:
         c = self.cfg
         if c.hover_episodes and self._episodes(self.hover_store()) < c.hover_episodes:
-            spec = RoundSpec(learner=f"oracle:{c.head}@{c.hover_cm:g}", horizon=c.student().action_horizon)
+            spec = RoundSpec(learner=f"oracle:{c.head}@{c.hover_cm:g}", horizon=c.student().action_horizon,
+                             sensor=c.sensor)
             tally = collect_round(self.hover_store(), self.env, spec, episodes=c.hover_episodes,
                                   seed=HOVER_SEED, workers=c.workers)
             self._log("hover data", tally)
@@ -231,8 +242,9 @@ class Recipe:
         steps = c.fit_steps if r == 0 else c.round_steps
         ckpt_path = self.run_dir(r) / CKPT_NAME
         if not (ckpt_path.is_file() and checkpoint.load(ckpt_path).step >= steps):
-            data = LabelledSteps(self.stores(r), c.student().obs_horizon,
-                                 c.student().action_horizon, depth=c.perception == "depth", device=self.dev)
+            data = LabelledSteps(self.stores(r), c.student().obs_horizon, c.student().action_horizon,
+                                 depth=c.perception == "depth", device=self.dev,
+                                 depth_source=c.depth_source())
             info = TrainingInfo(depth_spec=data.spec, action_scale=self.env.action_scale,
                                 control_rate_hz=self.env.control_rate_hz, trained=True,
                                 data={"recipe": str(self.out), "round": r, "steps": len(data),
@@ -246,7 +258,8 @@ class Recipe:
         c = self.cfg
         path = self.out / "data" / f"held_out_round{c.rounds}.zarr"  # more rounds later: another learner
         if self._episodes(path) < c.curve_episodes:
-            spec = RoundSpec(learner=self.learner(c.rounds), horizon=c.student().action_horizon)
+            spec = RoundSpec(learner=self.learner(c.rounds), horizon=c.student().action_horizon,
+                             sensor=c.sensor)
             collect_round(path, self.env, spec, episodes=c.curve_episodes, seed=HELD_OUT_SEED,
                           workers=c.workers)
         return path
@@ -258,7 +271,7 @@ class Recipe:
         path = self.readout_result(r)
         if self.cfg.perception != "depth" or path.is_file():
             return
-        result = measure(self.run_dir(r) / CKPT_NAME, store(), self.dev)
+        result = measure(self.run_dir(r) / CKPT_NAME, store(), self.dev, self.cfg.depth_source())
         path.write_text(json.dumps(result, indent=1))
         self._log(f"round {r} readout", {k: v for k, v in result.items() if k not in ("checkpoint", "store")})
 
@@ -269,7 +282,7 @@ class Recipe:
             return
         c = self.cfg
         result = evaluate(self.learner(r), GROUPS["seen"], c.curve_episodes, seed=CURVE_SEED,
-                          workers=c.workers)
+                          workers=c.workers, sensor=c.sensor)
         self.curve_result(r).write_text(json.dumps(result, indent=2))
         store = DemoStore.open(self.store(r))
         rows.append({"round": r, "steps": sum(DemoStore.open(s).n_steps for s in self.stores(r)),
@@ -285,7 +298,7 @@ class Recipe:
             path = self.run_dir(c.rounds) / f"eval_{objects}.json"  # in the round's folder: a later round
             if not path.is_file():                                    # leaves this one's result in place
                 result = evaluate(self.learner(c.rounds), GROUPS[objects], c.eval_episodes, seed=EVAL_SEED,
-                                  workers=c.workers)
+                                  workers=c.workers, sensor=c.sensor)
                 path.write_text(json.dumps(result, indent=2))
             results[objects] = json.loads(path.read_text())
         return {k: {"success_rate": v["success_rate"], "ci95": v["ci95"]} for k, v in results.items()}
@@ -433,6 +446,10 @@ def main(argv: list[str] | None = None) -> int:
         if cfg.head and cfg.perception != "depth":
             raise ValueError("--head composes a depth student's perception with a privileged head: it needs "
                              "--perception depth")
+        if cfg.sensor != "clean" and cfg.perception != "depth":
+            raise ValueError(f"--sensor {cfg.sensor}: a privileged student reads no depth; it needs "
+                             "--perception depth")
+        make_sensor(cfg.sensor)  # a misspelt one fails here, in one line, not in the first worker
         if cfg.hover_episodes and not cfg.head:
             raise ValueError("--hover-episodes needs --head: the privileged head drives them")
         if cfg.head and not Path(cfg.head).is_file():  # found now, not by the first worker that loads it
