@@ -224,7 +224,8 @@ def test_a_fit_reads_the_sensors_frames_where_asked_and_refuses_a_store_without_
     from trainer.student.steps import LabelledSteps, StepsError
 
     config = EnvConfig(objects=("cube",), max_steps=4)
-    collect_round(tmp_path / "noisy.zarr", config, RoundSpec(horizon=0, sensor="randnoise"), episodes=1, seed=3)
+    noisy_round = RoundSpec(horizon=0, sensor="randnoise")
+    collect_round(tmp_path / "noisy.zarr", config, noisy_round, episodes=1, seed=3)
     collect_round(tmp_path / "clean.zarr", config, RoundSpec(horizon=0), episodes=1, seed=3)
     noisy = DemoStore.open(tmp_path / "noisy.zarr")
     assert noisy.attrs["sensor"] == "randnoise"
