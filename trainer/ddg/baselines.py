@@ -8,6 +8,8 @@ numpy Generator -> uint16 mm depth [H, W] (0 = hole).
 - ``inpaint``: OpenCV Navier-Stokes inpainting of the holes (DexGraspNet 2.0's deploy-time restoration
   baseline, the runtime's ``--restore inpaint``; applied to real depth).
 - ``ddg_nograft`` / ``ddg``: the Diffusion Depth Generator without / with Noise Grafting (needs a model).
+- ``residual``: Stable-Sim2Real's residual depth diffusion (``residual.py``; needs a model made with
+  ``ddg residual-fit``): the simulated frame plus a generated residual, the sensor's holes included.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from runtime.preprocess import restore_holes
 DepthSource = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "ddg"
+DEFAULT_RESIDUAL = DEFAULT_MODEL.parent / "residual"
 
 
 class UnknownSourceError(ValueError):
@@ -102,20 +105,35 @@ class DDGSource:
         return self.finer[shape]
 
 
+class ResidualSource:
+    """One frame at a time through the residual diffusion (at the model's resolution); the frame's noise
+    comes from ``rng``."""
+
+    def __init__(self, model: str | Path = DEFAULT_RESIDUAL, steps: int = 10) -> None:
+        from .residual import ResidualGenerator
+
+        self.generator = ResidualGenerator(model, steps=steps)
+
+    def __call__(self, depth_mm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        return self.generator(depth_mm[None], np.array([rng.integers(0, 2**62)]))[0]
+
+
 SOURCES: dict[str, Callable[..., DepthSource]] = {
     "gt": lambda **_: gt,
     "randnoise": lambda **_: randnoise,
     "inpaint": lambda **_: inpaint,
     "ddg_nograft": lambda model=DEFAULT_MODEL, steps=10: DDGSource(model, steps, grafted=False),
     "ddg": lambda model=DEFAULT_MODEL, steps=10: DDGSource(model, steps, grafted=True),
+    "residual": lambda model=DEFAULT_RESIDUAL, steps=10: ResidualSource(model, steps),
 }
 
 
 def get_source(name: str, model: str | Path | None = None, steps: int = 10) -> DepthSource:
-    """The depth source called ``name``; ``model``/``steps`` matter for the DDG sources only."""
+    """The depth source called ``name``; ``model`` (default: the source's own) and ``steps`` matter for the
+    generated sources only."""
     if name not in SOURCES:
         raise UnknownSourceError(f"unknown depth source {name!r}; choose one of {sorted(SOURCES)}")
-    return SOURCES[name](model=model or DEFAULT_MODEL, steps=steps)
+    return SOURCES[name](**({"model": model} if model else {}), steps=steps)
 
 
 def _edge_map(depth_mm: np.ndarray, grad_mm: float) -> np.ndarray:
@@ -145,7 +163,7 @@ class SeededSource:
 
 def sensor_factory(name: str) -> Callable[[str], SeededSource]:
     """Adapter to ``trainer.sim.sensors``' factory shape. ARG is ``[model=DIR][,steps=K]`` (defaults: the
-    shipped model, 10 DDIM steps); a bare ARG is the model dir."""
+    source's model, 10 DDIM steps); a bare ARG is the model dir."""
     def factory(arg: str) -> SeededSource:
         return SeededSource(get_source(name, **parse_sensor_arg(name, arg)))
     return factory

@@ -1,5 +1,5 @@
-"""``python -m trainer ddg fit|generate|metrics|paired|bench``: each command runs one function on the config
-its flags make (``trainer.argspec.run_config``)."""
+"""``python -m trainer ddg fit|generate|metrics|paired|bench|residual-fit|residual-disc``: each command runs
+one function on the config its flags make (``trainer.argspec.run_config``)."""
 
 from __future__ import annotations
 
@@ -15,5 +15,9 @@ MENU = Menu("python -m trainer ddg", {
                "trainer.eval.paired_depth:paired"),
     "bench": ("generation throughput per session mode, batch and DDIM step count",
               "trainer.eval.ddg_throughput:bench"),
+    "residual-fit": ("fit stage I or II of the residual depth diffusion (Stable-Sim2Real) on paired frames",
+                     "trainer.ddg.residual_fit:fit_stage"),
+    "residual-disc": ("fit the 3D patch discriminator (stage I vs the sensor); held-out accuracy by patch "
+                      "and width", "trainer.ddg.discriminator:fit_discriminators"),
 }, errors=(ValueError,), call=run_config)  # every DDG input error is a ValueError with a one-line message
 main = MENU.main

@@ -1,7 +1,10 @@
 """The conditional U-Net (eps_theta(d_k ⊕ c, k), paper eq. 8), its noise schedule and the model directory.
 
 A model directory holds ``config.json`` (this module's configs + the DepthSpec), ``unet.safetensors`` (EMA
-weights) and ``unet.onnx`` (the same network for onnxruntime). Nothing is pickled.
+weights) and ``unet.onnx`` (the same network for onnxruntime). Nothing is pickled. The DDG's net reads 2
+channels (d_k, c) and writes 1; the residual diffusion (``residual.py``) builds the same net with other
+channel counts, which its config records as ``io``, and its own ``x0_scale``, so neither kind of model is
+loaded as the other.
 """
 
 from __future__ import annotations
@@ -49,10 +52,14 @@ class UNetConfig:
             raise ModelDirError(f"prediction must be epsilon or v_prediction, got {self.prediction!r}")
 
 
-def build_unet(cfg: UNetConfig, spec: DepthSpec = POLICY_SPEC) -> UNet2DModel:
+DDG_IO = (2, 1)
+"""(input, output) channels of the DDG's net: d_k ⊕ c in, the noise (or v) of d_k out."""
+
+
+def build_unet(cfg: UNetConfig, spec: DepthSpec = POLICY_SPEC, io: tuple[int, int] = DDG_IO) -> UNet2DModel:
     n = len(cfg.channels)
     return UNet2DModel(
-        sample_size=(spec.out_height, spec.out_width), in_channels=2, out_channels=1,
+        sample_size=(spec.out_height, spec.out_width), in_channels=io[0], out_channels=io[1],
         block_out_channels=tuple(cfg.channels), layers_per_block=cfg.layers_per_block,
         down_block_types=("DownBlock2D",) * n, up_block_types=("UpBlock2D",) * n,
         add_attention=cfg.mid_attention, norm_num_groups=8, attention_head_dim=8)
@@ -73,7 +80,7 @@ def ddim_scheduler(cfg: UNetConfig, steps: int) -> DDIMScheduler:
 
 
 class EpsNet(torch.nn.Module):
-    """(x [B, 2, H, W], t [B] int64) -> eps [B, 1, H, W]: the plain-tensor face exported to ONNX."""
+    """(x [B, in, H, W], t [B] int64) -> eps [B, out, H, W]: the plain-tensor face exported to ONNX."""
 
     def __init__(self, unet: UNet2DModel) -> None:
         super().__init__()
@@ -93,18 +100,29 @@ def save_model(out: Path, unet: UNet2DModel, cfg: UNetConfig, spec: DepthSpec, e
     export_onnx(unet, spec, out / "unet.onnx")
 
 
-def load_config(model_dir: str | Path) -> dict:
+RESIDUAL_SCALE = "residual"
+"""The ``x0_scale`` a residual model records: its target is the sensor's depth minus the simulator's."""
+SCALE_KINDS = {X0_SCALE: "DDG", RESIDUAL_SCALE: "residual depth diffusion"}
+"""A model's ``x0_scale`` -> the kind of model that made it."""
+
+
+def load_config(model_dir: str | Path, x0_scale: str = X0_SCALE) -> dict:
+    """The config of a model of the kind that ``x0_scale`` names; ``io`` is its (input, output) channels."""
     f = Path(model_dir) / "config.json"
     if not f.is_file():
-        raise ModelDirError(f"{model_dir}: no config.json (not a DDG model directory)")
+        raise ModelDirError(f"{model_dir}: no config.json (not a {SCALE_KINDS[x0_scale]} model directory)")
     raw = json.loads(f.read_text())
-    if raw.get("x0_scale") != X0_SCALE or "prediction" not in raw["unet"]:
+    made = raw.get("x0_scale")
+    if made != x0_scale and made in SCALE_KINDS:
+        raise ModelDirError(f"{model_dir}: a {SCALE_KINDS[made]} model, not a {SCALE_KINDS[x0_scale]} one")
+    if made != x0_scale or "prediction" not in raw["unet"]:
         old = raw.get("x0_scale", "metric"), raw["unet"].get("prediction", "eps")
         was = f"target scale {old[0]}, prediction {old[1]}"
         raise ModelDirError(f"{model_dir}: made by an older trainer ({was}); this version decodes the "
-                            f"{X0_SCALE} scale and needs the prediction type: retrain it")
+                            f"{x0_scale} scale and needs the prediction type: retrain it")
     raw["unet"] = UNetConfig(**{**raw["unet"], "channels": tuple(raw["unet"]["channels"])})
     raw["depth_spec"] = DepthSpec.from_dict(raw["depth_spec"])
+    raw["io"] = tuple(raw.get("io", DDG_IO))
     return raw
 
 
@@ -117,20 +135,20 @@ def model_id(model_dir: str | Path) -> str:
     return f"{Path(model_dir).resolve().name}@{hashlib.sha256(f.read_bytes()).hexdigest()[:12]}"
 
 
-def load_unet(model_dir: str | Path) -> tuple[UNet2DModel, dict]:
+def load_unet(model_dir: str | Path, x0_scale: str = X0_SCALE) -> tuple[UNet2DModel, dict]:
     from safetensors.torch import load_file
 
-    cfg = load_config(model_dir)
+    cfg = load_config(model_dir, x0_scale)
     weights = Path(model_dir) / "unet.safetensors"
     if not weights.is_file():
         raise ModelDirError(f"{model_dir}: no unet.safetensors")
-    unet = build_unet(cfg["unet"], cfg["depth_spec"])
+    unet = build_unet(cfg["unet"], cfg["depth_spec"], cfg["io"])
     unet.load_state_dict(load_file(weights))
     return unet.eval(), cfg
 
 
 def export_onnx(unet: UNet2DModel, spec: DepthSpec, path: Path) -> None:
-    x = torch.zeros(2, 2, spec.out_height, spec.out_width)
+    x = torch.zeros(2, unet.config.in_channels, spec.out_height, spec.out_width)
     t = torch.full((2,), 10, dtype=torch.int64)
     torch.onnx.export(EpsNet(unet).eval(), (x, t), str(path), input_names=["x", "t"], output_names=["eps"],
                       dynamic_axes={"x": {0: "batch"}, "t": {0: "batch"}, "eps": {0: "batch"}},

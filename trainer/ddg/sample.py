@@ -1,5 +1,6 @@
 """DDIM sampling of the generator (diffusers' DDIMScheduler, the one implementation of the update), with the
-U-Net run by onnxruntime (``OnnxEps``, for generation) or torch (``TorchEps``, the reference in tests).
+U-Net run by onnxruntime (``OnnxEps``, for generation) or torch (``TorchEps``, the reference in tests). The
+residual diffusion (``residual.py``) samples its two-channel targets through the same ``ddim_reverse``.
 
 Each frame's start noise (and, with eta > 0, each step's fresh noise) comes from its own generator seeded by
 (seed, frame index), so the output for a frame does not depend on batching, sharding or resuming.
@@ -20,7 +21,7 @@ from runtime.preprocess import DepthSpec, resample
 from trainer.dataset import sizes
 
 from .graft import decode, graft
-from .model import ddim_scheduler, load_config, load_unet
+from .model import X0_SCALE, ddim_scheduler, load_config, load_unet
 from .prior import DepthPrior
 
 
@@ -30,7 +31,8 @@ class FrameError(ValueError):
 
 class EpsFn(Protocol):
     def __call__(self, x: np.ndarray, t: int) -> np.ndarray:
-        """x float32 [B, 2, H, W] = d_k ⊕ c, timestep t -> predicted noise float32 [B, 1, H, W]."""
+        """x float32 [B, C + Cc, H, W] = d_k ⊕ c (the DDG: C = Cc = 1), timestep t -> predicted noise
+        float32 [B, C, H, W]."""
         ...
 
 
@@ -69,32 +71,48 @@ class OnnxEps:
 
 
 class TorchEps:
-    def __init__(self, model_dir: str | Path) -> None:
-        self.unet, _ = load_unet(model_dir)
+    def __init__(self, model_dir: str | Path, x0_scale: str = X0_SCALE) -> None:
+        self.unet, _ = load_unet(model_dir, x0_scale)
 
     @torch.no_grad()
     def __call__(self, x: np.ndarray, t: int) -> np.ndarray:
         return self.unet(torch.from_numpy(x), torch.full((len(x),), t)).sample.numpy()
 
 
-def frame_noise(seed: int, indices: np.ndarray, shape: tuple[int, int], step: int = -1) -> np.ndarray:
-    """float32 [B, 1, H, W]: N(0, I) noise, one generator per (seed, frame index): the start noise, or with
-    ``step`` >= 0 the fresh noise that DDIM step ``step`` adds when eta > 0."""
+def frame_noise(seed: int, indices: np.ndarray, shape: tuple[int, int], step: int = -1, channels: int = 1
+                ) -> np.ndarray:
+    """float32 [B, channels, H, W]: N(0, I) noise, one generator per (seed, frame index): the start noise, or
+    with ``step`` >= 0 the fresh noise that DDIM step ``step`` adds when eta > 0."""
     keys = [[seed, int(i)] if step < 0 else [seed, int(i), step] for i in indices]
-    return np.stack([np.random.default_rng(k).standard_normal(shape, np.float32) for k in keys])[:, None]
+    return np.stack([np.random.default_rng(k).standard_normal((channels, *shape), np.float32) for k in keys])
 
 
 def ddim_sample(eps_fn: EpsFn, c: np.ndarray, noise: np.ndarray, scheduler, eta: float = 0.0,
                 step_noise: Callable[[int], np.ndarray] | None = None) -> np.ndarray:
     """Reverse process from ``noise`` [B, 1, H, W] under condition ``c`` [B, H, W] -> d_pred [B, H, W].
     eta = 0 is deterministic DDIM; eta > 0 adds ``step_noise(k)`` at step k (eta = 1: DDPM-like)."""
+    return ddim_reverse(eps_fn, c[:, None], noise, scheduler, eta, step_noise)[:, 0]
+
+
+def ddim_reverse(eps_fn: EpsFn, cond: np.ndarray, noise: np.ndarray, scheduler, eta: float = 0.0,
+                 step_noise: Callable[[int], np.ndarray] | None = None) -> np.ndarray:
+    """``ddim_sample`` for any channel counts: ``noise`` [B, C, H, W], condition ``cond`` [B, Cc, H, W] ->
+    x_0 [B, C, H, W]."""
     x = torch.from_numpy(noise)
-    cond = c[:, None].astype(np.float32)
+    cond = cond.astype(np.float32)
     for k, t in enumerate(scheduler.timesteps):
         eps = eps_fn(np.concatenate([x.numpy(), cond], axis=1), int(t))
         fresh = torch.from_numpy(step_noise(k)) if eta > 0 and step_noise is not None else None
         x = scheduler.step(torch.from_numpy(eps), t, x, eta=eta, variance_noise=fresh).prev_sample
-    return x.numpy()[:, 0]
+    return x.numpy()
+
+
+def check_frames(sim_mm, spec: DepthSpec, whose: str = "the model's") -> None:
+    """Refuse simulated frames that are not uint16 mm [N, H, W] at ``spec``'s resolution."""
+    want = (spec.out_height, spec.out_width)
+    if sim_mm.dtype != np.uint16 or sim_mm.ndim != 3 or tuple(sim_mm.shape[1:]) != want:
+        raise FrameError(f"simulated depth must be uint16 mm [N, {want[0]}, {want[1]}] ({whose} "
+                         f"resolution), got {sim_mm.dtype} {list(sim_mm.shape)}")
 
 
 class Generator:
@@ -122,11 +140,8 @@ class Generator:
 
     def check_frames(self, sim_mm) -> None:
         """Refuse frames not at the resolution announced (the U-Net is fully convolutional: it would run)."""
-        want = (self.frames.out_height, self.frames.out_width)
-        if sim_mm.dtype != np.uint16 or sim_mm.ndim != 3 or tuple(sim_mm.shape[1:]) != want:
-            whose = "the model's" if self.frames == self.spec else "the frames' spec"
-            raise FrameError(f"simulated depth must be uint16 mm [N, {want[0]}, {want[1]}] ({whose} "
-                             f"resolution), got {sim_mm.dtype} {list(sim_mm.shape)}")
+        whose = "the model's" if self.frames == self.spec else "the frames' spec"
+        check_frames(sim_mm, self.frames, whose)
 
     def __call__(self, sim_mm: np.ndarray, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         self.check_frames(sim_mm)

@@ -1,7 +1,8 @@
 """DDPM training of the conditional U-Net on real crops (paper eq. 8), with EMA, checkpoints and resume.
 
 Batches and noise are drawn from generators seeded by (seed, step), so a resumed run continues exactly as an
-uninterrupted one would.
+uninterrupted one would. ``train`` is the loop on any (x0, c) arrays, with an optional per-pixel loss weight:
+the residual diffusion's two stages (``residual_fit.py``) run it too.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import os
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -31,6 +33,20 @@ from .bank import (
 from .data import POLICY_SPEC, load_real_dir, split
 from .graft import HOLE_THRESHOLD
 from .model import UNetConfig, build_unet, ddpm_scheduler, save_model
+
+
+class LoopSettings(Protocol):
+    """What ``train`` reads of a fit's config (``FitConfig``; ``residual_fit.StageConfig``)."""
+
+    steps: int
+    batch: int
+    lr: float
+    ema_decay: float
+    ckpt_every: int
+    max_minutes: float
+    seed: int
+    device: str
+    patch: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -91,53 +107,67 @@ def fit(cfg: FitConfig) -> Path:
     run.mkdir(parents=True, exist_ok=True)
     bank, names = _bank(cfg, run)
     ucfg = UNetConfig(channels=cfg.channels, prediction=cfg.prediction)
-    unet = build_unet(ucfg).to(cfg.device)
+    ema, losses, minutes = train(build_unet(ucfg), ucfg, training_arrays(bank), cfg, run, "ddg fit")
+    extra = {"hole_threshold": HOLE_THRESHOLD, "train": {**asdict(cfg), "steps_done": len(losses),
+             "train_minutes": round(minutes, 2), "n_crops": int(len(bank["c"]))}, "frames": names}
+    save_model(out, ema, ucfg, bank_spec(bank), extra)
+    plot_losses(losses, out / "loss.png")
+    (out / "frames.txt").write_text("\n".join(names) + "\n")
+    return out
+
+
+def train(unet: torch.nn.Module, ucfg: UNetConfig, arrays: tuple[np.ndarray, ...], cfg: LoopSettings,
+          run: Path, desc: str, title: str = "DDG training loss"
+          ) -> tuple[torch.nn.Module, list[float], float]:
+    """The DDPM loop on ``arrays`` = (x0, c[, weight]) (``train_step``), checkpointed in ``run`` every
+    ``cfg.ckpt_every`` steps and resumed from there; returns (the EMA net on the CPU, every step's loss, the
+    minutes it trained, resumed runs' included)."""
+    unet = unet.to(cfg.device)
     ema = copy.deepcopy(unet).requires_grad_(False)
     opt = torch.optim.AdamW(unet.parameters(), lr=cfg.lr, weight_decay=1e-4)
     # float(): a numpy scalar in the scheduler state would make the checkpoint unloadable with weights_only
     sched = torch.optim.lr_scheduler.LambdaLR(
         opt, lambda s: float(0.1 + 0.45 * (1 + np.cos(np.pi * s / cfg.steps))))
-    state = _resume(run / "ckpt.pt", unet, ema, opt, sched)
+    parts = {"unet": unet, "ema": ema, "opt": opt, "sched": sched}
+    state = resume(run / "ckpt.pt", parts)
     step, losses, elapsed = state["step"], state["losses"], state["elapsed"]
     noise_sched = ddpm_scheduler(ucfg)
-    x0_all, c_all = (torch.from_numpy(a).to(cfg.device) for a in training_arrays(bank))
+    tensors = [torch.from_numpy(a).to(cfg.device) for a in arrays]
     t0 = time.monotonic() - elapsed
-    bar = tqdm(range(step, cfg.steps), initial=step, total=cfg.steps, desc="ddg fit")
+    bar = tqdm(range(step, cfg.steps), initial=step, total=cfg.steps, desc=desc)
     for step in bar:
-        loss = train_step(unet, opt, noise_sched, x0_all, c_all, cfg, step)
+        loss = train_step(unet, opt, noise_sched, *tensors[:2], cfg, step, *tensors[2:])
         sched.step()
         _ema_update(ema, unet, cfg.ema_decay)
         losses.append(loss)
         bar.set_postfix(loss=f"{np.mean(losses[-50:]):.4f}")
         done = step + 1 == cfg.steps or (cfg.max_minutes and time.monotonic() - t0 > 60 * cfg.max_minutes)
         if (step + 1) % cfg.ckpt_every == 0 or done:
-            _checkpoint(run, unet, ema, opt, sched, step + 1, losses, time.monotonic() - t0)
+            checkpoint(run, parts, step + 1, losses, time.monotonic() - t0)
+            plot_losses(losses, run / "loss.png", title)
         if done:
             break
-    minutes = (time.monotonic() - t0) / 60
-    extra = {"hole_threshold": HOLE_THRESHOLD, "train": {**asdict(cfg), "steps_done": len(losses),
-             "train_minutes": round(minutes, 2), "n_crops": int(len(bank["c"]))}, "frames": names}
-    save_model(out, ema.cpu(), ucfg, bank_spec(bank), extra)
-    plot_losses(losses, out / "loss.png")
-    (out / "frames.txt").write_text("\n".join(names) + "\n")
-    return out
+    return ema.cpu(), losses, (time.monotonic() - t0) / 60
 
 
 def train_step(unet: torch.nn.Module, opt: torch.optim.Optimizer, noise_sched, x0_all: torch.Tensor,
-               c_all: torch.Tensor, cfg: FitConfig, step: int) -> float:
+               c_all: torch.Tensor, cfg: LoopSettings, step: int, weight_all: torch.Tensor | None = None
+               ) -> float:
     """One eq.-8 step: eps ~ N(0, I), k ~ U{0..K-1}, minimise ||target - net(d_k ⊕ c, k)||^2 with target eps
-    or, for a v-prediction model, v = sqrt(abar_k) eps - sqrt(1 - abar_k) d_0."""
+    or, for a v-prediction model, v = sqrt(abar_k) eps - sqrt(1 - abar_k) d_0. Arrays are [N, H, W] (one
+    channel) or [N, C, H, W]; ``weight_all`` [N, 1, H, W] weighs each pixel's squared error
+    (``weighted_mse``)."""
     g = torch.Generator().manual_seed(cfg.seed * 1_000_003 + step)
     idx = torch.randint(0, len(x0_all), (cfg.batch,), generator=g)
-    x0, c = _patches(x0_all[idx, None], c_all[idx, None], cfg.patch, g)
+    picked = [a[idx, None] if a.ndim == 3 else a[idx] for a in (x0_all, c_all, weight_all) if a is not None]
+    x0, c, *weight = _patches(picked, cfg.patch, g)
     flip = torch.rand(cfg.batch, generator=g) < 0.5  # horizontal flip, the one mirror a camera allows
-    x0, c = torch.where(flip[:, None, None, None], x0.flip(-1), x0), torch.where(
-        flip[:, None, None, None], c.flip(-1), c)
+    x0, c, *weight = (torch.where(flip[:, None, None, None], a.flip(-1), a) for a in (x0, c, *weight))
     eps = torch.randn(x0.shape, generator=g).to(x0.device)
     k = torch.randint(0, noise_sched.config.num_train_timesteps, (cfg.batch,), generator=g).to(x0.device)
     xk = noise_sched.add_noise(x0, eps, k)
-    loss = torch.nn.functional.mse_loss(unet(torch.cat([xk, c], 1), k).sample,
-                                        training_target(noise_sched, x0, eps, k))
+    loss = weighted_mse(unet(torch.cat([xk, c], 1), k).sample, training_target(noise_sched, x0, eps, k),
+                        weight[0] if weight else None)
     opt.zero_grad(set_to_none=True)
     loss.backward()
     torch.nn.utils.clip_grad_norm_(unet.parameters(), 1.0)
@@ -145,17 +175,27 @@ def train_step(unet: torch.nn.Module, opt: torch.optim.Optimizer, noise_sched, x
     return loss.item()
 
 
-def _patches(x0: torch.Tensor, c: torch.Tensor, patch: tuple[int, ...], g: torch.Generator
-             ) -> tuple[torch.Tensor, torch.Tensor]:
-    """One random window (the same for the whole batch, so it stays one tensor) of size ``patch``."""
-    h, w = x0.shape[-2:]
+def weighted_mse(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None
+                 ) -> torch.Tensor:
+    """Mean squared error, each pixel's (every channel's) error times its ``weight`` when given: the mean
+    over all pixels of w * e^2, i.e. eq. 6's omega L_sim + lambda L_dis with both sums over the batch's
+    pixels."""
+    if weight is None:
+        return torch.nn.functional.mse_loss(pred, target)
+    return (weight * (pred - target) ** 2).mean()
+
+
+def _patches(tensors: list[torch.Tensor], patch: tuple[int, ...], g: torch.Generator) -> list[torch.Tensor]:
+    """One random window (the same for the whole batch and every tensor, so each stays one tensor) of size
+    ``patch``."""
+    h, w = tensors[0].shape[-2:]
     ph, pw = (patch[0] or h, patch[1] or w) if patch else (h, w)
     top = int(torch.randint(0, h - ph + 1, (1,), generator=g))
     left = int(torch.randint(0, w - pw + 1, (1,), generator=g))
-    return x0[..., top:top + ph, left:left + pw], c[..., top:top + ph, left:left + pw]
+    return [t[..., top:top + ph, left:left + pw] for t in tensors]
 
 
-def plot_losses(losses: list[float], path: Path) -> None:
+def plot_losses(losses: list[float], path: Path, title: str = "DDG training loss") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -165,7 +205,7 @@ def plot_losses(losses: list[float], path: Path) -> None:
     ax.plot(losses, alpha=0.3, lw=0.5, label="step")
     w = max(1, len(losses) // 50)
     ax.plot(np.convolve(losses, np.ones(w) / w, mode="valid"), label=f"mean of {w}")
-    ax.set(xlabel="step", ylabel="eps MSE (eq. 8)", yscale="log", title="DDG training loss")
+    ax.set(xlabel="step", ylabel="eps MSE (eq. 8)", yscale="log", title=title)
     ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -198,20 +238,20 @@ def _ema_update(ema: torch.nn.Module, model: torch.nn.Module, decay: float) -> N
         torch._foreach_lerp_(list(ema.parameters()), list(model.parameters()), 1.0 - decay)
 
 
-def _checkpoint(run: Path, unet, ema, opt, sched, step: int, losses: list[float], elapsed: float) -> None:
+def checkpoint(run: Path, parts: dict, step: int, losses: list[float], elapsed: float) -> None:
+    """``run``/ckpt.pt: the state of each of ``parts`` (name -> anything with a ``state_dict``), the step, the
+    losses and the wall time so far."""
     tmp = run / "ckpt.pt.tmp"
-    torch.save({"unet": unet.state_dict(), "ema": ema.state_dict(), "opt": opt.state_dict(),
-                "sched": sched.state_dict(), "step": step, "losses": losses, "elapsed": elapsed}, tmp)
+    torch.save({**{name: part.state_dict() for name, part in parts.items()}, "step": step, "losses": losses,
+                "elapsed": elapsed}, tmp)
     os.replace(tmp, run / "ckpt.pt")  # atomic: a kill mid-save never leaves a broken checkpoint
-    plot_losses(losses, run / "loss.png")
 
 
-def _resume(path: Path, unet, ema, opt, sched) -> dict:
+def resume(path: Path, parts: dict) -> dict:
+    """Load ``parts`` from the checkpoint at ``path`` if there is one; returns it (step 0 without)."""
     if not path.exists():
         return {"step": 0, "losses": [], "elapsed": 0.0}
     ck = torch.load(path, map_location="cpu", weights_only=True)
-    unet.load_state_dict(ck["unet"])
-    ema.load_state_dict(ck["ema"])
-    opt.load_state_dict(ck["opt"])
-    sched.load_state_dict(ck["sched"])
+    for name, part in parts.items():
+        part.load_state_dict(ck[name])
     return ck

@@ -1,0 +1,162 @@
+"""Stable-Sim2Real's residual depth diffusion (its §3.2 and §3.5): the target it learns, how that target turns
+back into depth, and sampling through the model's stages.
+
+The target x0, float32 [2, H, W] in [-1, 1], of a paired frame (sim, sensor):
+
+- channel 0, the residual: (sensor - sim) in metres, clipped to +-``residual_m`` and divided by it; 0 where
+  either frame has no depth (there is no residual there to learn);
+- channel 1, the holes: +1 where the sensor has no depth, -1 where it has.
+
+The paper writes the residual as S - R in §3.2 but adds it to S in §3.4-3.5; R - S (sensor - sim) is the one
+that adds up. Holes get their own channel because "no data" is not a depth offset: a residual cannot carry it.
+
+The condition c is the simulator's depth as the policy reads it (``runtime.preprocess.normalise``: [0, 1] over
+near_m..far_m of the model's DepthSpec, -1 where it has none): metric, since a stereo sensor's error grows
+with range, which a per-frame relative scale (the DDG's) would hide.
+
+``decode``: sim + the residual in whole mm, and 0 ("no data") where channel 1 is above 0, where the simulator
+has no depth, or where the sum would not lie in front of the camera. A zero residual without holes gives back
+the simulator's frame bit for bit: everything the model adds is its residual.
+
+A residual model directory holds ``stage1/`` (eps(x_k ⊕ c, k)), and once trained ``discriminator/``
+(``discriminator.py``) and ``stage2/`` (eps(x_k ⊕ c ⊕ stage I's output as a target, k); §3.4). Each stage
+directory is a U-Net model directory (``model.py``) whose config records ``x0_scale`` "residual",
+``residual_m`` and ``io``. ``cache/`` keeps stage I's samples on training frames, read by the discriminator's
+fit and stage II's.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from runtime.preprocess import DepthSpec, normalise
+
+from .model import RESIDUAL_SCALE, ModelDirError, ddim_scheduler, load_config, model_id
+from .sample import OnnxEps, TorchEps, check_frames, ddim_reverse, frame_noise
+
+TARGET_CHANNELS = 2
+"""Residual and holes."""
+HOLE_THRESHOLD = 0.0
+"""A pixel of the hole channel above this is a hole: half way between "valid" (-1) and "hole" (+1)."""
+STAGES = ("stage1", "stage2")
+STAGE_SEED = 1 << 32
+"""Stage k draws its noise under seed + (k - 1) * STAGE_SEED: its own, not stage I's again."""
+
+
+def condition(sim_mm: np.ndarray, spec: DepthSpec) -> np.ndarray:
+    """uint16 mm [N, H, W] -> c float32 [N, 1, H, W]: the policy's normalisation of the simulated depth."""
+    return np.stack([normalise(d, 0.001, spec) for d in sim_mm])[:, None]
+
+
+def encode(sim_mm: np.ndarray, sensor_mm: np.ndarray, residual_m: float) -> np.ndarray:
+    """Paired uint16 mm frames [N, H, W] -> the target x0 float32 [N, 2, H, W] (module docstring)."""
+    both = (sim_mm > 0) & (sensor_mm > 0)
+    metres = (sensor_mm.astype(np.float32) - sim_mm.astype(np.float32)) / 1000.0
+    residual = np.where(both, np.clip(metres / residual_m, -1.0, 1.0), 0.0)
+    holes = np.where(sensor_mm == 0, 1.0, -1.0)
+    return np.stack([residual, holes], axis=1).astype(np.float32)
+
+
+def decode(sim_mm: np.ndarray, x0: np.ndarray, residual_m: float) -> np.ndarray:
+    """uint16 mm [N, H, W] + a sampled x0 [N, 2, H, W] -> the generated uint16 mm depth, 0 = no data."""
+    offset = np.rint(np.clip(x0[:, 0], -1.0, 1.0) * (residual_m * 1000.0)).astype(np.int64)
+    depth = sim_mm.astype(np.int64) + offset
+    none = (x0[:, 1] > HOLE_THRESHOLD) | (sim_mm == 0) | (depth <= 0)
+    return np.where(none, 0, np.minimum(depth, 65535)).astype(np.uint16)
+
+
+def stage_condition(sim_mm: np.ndarray, spec: DepthSpec, residual_m: float, earlier: np.ndarray | None = None
+                    ) -> np.ndarray:
+    """A stage's condition [N, 1 or 3, H, W]: c, and for stage II stage I's output ``earlier`` (uint16 mm)
+    encoded as a target against the simulated frames, as the paper conditions on D_res^I and S."""
+    c = condition(sim_mm, spec)
+    return c if earlier is None else np.concatenate([c, encode(sim_mm, earlier, residual_m)], axis=1)
+
+
+def stage_io(stage: int) -> tuple[int, int]:
+    """(input, output) channels of stage ``stage``'s U-Net: x_k and its condition in, the noise of x_k out."""
+    return TARGET_CHANNELS + 1 + (stage - 1) * TARGET_CHANNELS, TARGET_CHANNELS
+
+
+class Stage:
+    """One stage's net, DDIM schedule and recorded encoding."""
+
+    def __init__(self, stage_dir: Path, steps: int, threads: int, backend: str, mode: str) -> None:
+        cfg = load_config(stage_dir, RESIDUAL_SCALE)
+        self.spec, self.residual_m = cfg["depth_spec"], float(cfg["residual_m"])
+        self.scheduler = ddim_scheduler(cfg["unet"], steps)
+        self.eps = (OnnxEps(stage_dir, threads, mode) if backend == "onnx"
+                    else TorchEps(stage_dir, RESIDUAL_SCALE))
+
+
+def stage_dirs(model_dir: str | Path, stages: int = 0) -> list[Path]:
+    """The model's stage directories, in order: the first ``stages`` of them, or (0) every one it has."""
+    root = Path(model_dir)
+    have = [root / s for s in STAGES if (root / s).is_dir()]
+    if not have or have[0].name != STAGES[0]:
+        raise ModelDirError(f"{model_dir}: no stage1/ (not a residual model directory; make one with "
+                            "`python -m trainer ddg residual-fit`)")
+    if stages > len(have):
+        raise ModelDirError(f"{model_dir}: has {len(have)} stage(s), not {stages}")
+    return have[:stages or len(have)]
+
+
+class ResidualGenerator:
+    """Simulated uint16 mm frames [N, H, W] -> the sensor's depth as the residual diffusion makes it: stage I,
+    then stage II on its output when the model has one (or ``stages`` of them).
+
+    Each frame's noise comes from its own generator seeded by (seed, frame index), as the DDG's does, so a
+    frame's output does not depend on batching or sharding."""
+
+    def __init__(self, model_dir: str | Path, steps: int = 10, seed: int = 0, threads: int = 2,
+                 backend: str = "onnx", mode: str = "split", eta: float = 0.0, stages: int = 0) -> None:
+        self.stages = [Stage(d, steps, threads, backend, mode) for d in stage_dirs(model_dir, stages)]
+        first = self.stages[0]
+        self.spec, self.residual_m, self.seed, self.eta = first.spec, first.residual_m, seed, eta
+        if any((s.spec, s.residual_m) != (self.spec, self.residual_m) for s in self.stages[1:]):
+            raise ModelDirError(f"{model_dir}: stage2 was trained on another encoding (range or residual_m) "
+                                "than stage1; retrain it")
+
+    def __call__(self, sim_mm: np.ndarray, indices: np.ndarray) -> np.ndarray:
+        check_frames(sim_mm, self.spec)
+        shape, out = (self.spec.out_height, self.spec.out_width), None
+        for k, stage in enumerate(self.stages):
+            seed = self.seed + k * STAGE_SEED
+            noise = frame_noise(seed, indices, shape, channels=TARGET_CHANNELS)
+            cond = stage_condition(sim_mm, self.spec, self.residual_m, out)
+            x0 = ddim_reverse(stage.eps, cond, noise, stage.scheduler, self.eta,
+                              lambda j, s=seed: frame_noise(s, indices, shape, j, TARGET_CHANNELS))
+            out = decode(sim_mm, x0, self.residual_m)
+        return out
+
+
+def generate_frames(gen: ResidualGenerator, sim_mm: np.ndarray, desc: str, batch: int = 16) -> np.ndarray:
+    """Every frame of ``sim_mm`` through ``gen``, ``batch`` at a time, frame i seeded by its index i."""
+    parts = []
+    for i in tqdm(range(0, len(sim_mm), batch), desc=desc, unit="batch"):
+        frames = sim_mm[i:i + batch]
+        parts.append(gen(frames, np.arange(i, i + len(frames))))
+    return np.concatenate(parts)
+
+
+def stage1_outputs(model_dir: str | Path, sim_mm: np.ndarray, steps: int, seed: int = 0, threads: int = 2,
+                   batch: int = 16) -> np.ndarray:
+    """Stage I's output on ``sim_mm`` (frame i seeded by its index i), kept in the model's ``cache/`` under
+    the model's weights, the settings and the frames: the discriminator's fit and stage II's make it once."""
+    key = hashlib.sha256(f"{model_id(stage_dirs(model_dir, 1)[0])} {steps} {seed}".encode()
+                         + sim_mm.tobytes()).hexdigest()[:16]
+    cached = Path(model_dir) / "cache" / f"stage1_{key}.npy"
+    if cached.is_file():
+        return np.load(cached)
+    gen = ResidualGenerator(model_dir, steps=steps, seed=seed, threads=threads, stages=1)
+    out = generate_frames(gen, sim_mm, "stage I on the frames", batch)
+    cached.parent.mkdir(parents=True, exist_ok=True)
+    with open(cached.with_suffix(".tmp"), "wb") as f:
+        np.save(f, out)
+    os.replace(cached.with_suffix(".tmp"), cached)  # a kill mid-save never leaves a broken cache
+    return out
