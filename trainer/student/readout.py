@@ -179,6 +179,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="label the frames alone, not with the expert's action chunks from each state (its "
                         "lookahead is ~3/4 of an episode's time): a store for `trainer student refit "
                         "--perception-only`")
+    p.add_argument("--collect-only", action="store_true",
+                   help="collect the episodes into --store and measure nothing (a store for `trainer student "
+                        "refit`: measuring 30k frames takes minutes)")
     p.add_argument("--sensor", default="",
                    help="what the learner sees while the store is collected (ddg, stereo ...: "
                         "trainer.sim.sensors), kept beside the clean frames; the readout is then measured on "
@@ -194,6 +197,8 @@ def main(argv: list[str] | None = None) -> int:
                                   sensor=args.sensor or "clean", beta=args.beta)
             collect_round(args.store, env, labelling, episodes=args.episodes, seed=args.seed,
                           workers=args.workers)
+        if args.collect_only:
+            return 0
         print(json.dumps(measure(args.checkpoint, args.store, depth_source=_source(args.store, args.sensor)),
                          indent=1))
     except (ValueError, OSError) as exc:  # an unknown kind is an ObjectError, a ValueError
