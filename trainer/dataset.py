@@ -14,7 +14,10 @@ Layout (names are a contract):
     data/depth_ddg, data/depth_ddg_nograft  uint16 [N, 96, 128]  optional: DDG depth of each frame, with
                        and without the simulated geometry grafted back (``trainer.ddg.generate``), made chunk
                        by chunk
-    meta/ddg_done           bool    [N / chunk]  with DDG depth: which of its chunks are made (attrs ``ddg``)
+    data/depth_residual  uint16 [N, 96, 128]  optional: the residual diffusion's depth of each frame
+                       (``trainer.ddg.generate --generator residual``), made chunk by chunk
+    meta/ddg_done, meta/residual_done  bool [N / chunk]  with a generator's depth: which of its chunks are
+                       made (its settings: attrs ``ddg`` or ``residual``)
     meta/episode_ends       int64   [E]     cumulative end index of each stored (successful) episode
     meta/kind               str     [E]     object kind
     meta/seed               int64   [E]
@@ -24,7 +27,7 @@ Layout (names are a contract):
     meta/randomisation      str     [E]     JSON of the episode's draws (hil_sim.world.Episode)
     attrs: depth_spec, action_scale, control_rate_hz, depth_scale (0.001), attempted, succeeded, failed,
            teacher, seed, sensor (with data/depth_sensor), chunk_horizon (with data/chunk),
-           ddg (with DDG depth: the generator's model, steps, seed, chunk and eta)
+           ddg, residual (with a generator's depth: its model, steps, seed, chunk and eta)
 Each depth a student can train on (``DEPTH_SOURCES``) is one of these arrays; ``DemoStore.depth`` reads it
 and refuses one the store lacks or has not finished generating.
 Episodes are appended whole: data arrays first, then the per-episode meta, then ``episode_ends`` last, so
@@ -66,11 +69,21 @@ DEPTH_SOURCES = {
     "ddg": DepthSource("data/depth_ddg", "python -m trainer ddg generate"),
     "ddg_nograft": DepthSource("data/depth_ddg_nograft", "python -m trainer ddg generate"),
     "sensor": DepthSource("data/depth_sensor", "python -m trainer collect --sensor"),
+    "residual": DepthSource("data/depth_residual", "python -m trainer ddg generate --generator residual"),
 }
 """Depth source -> its stored array. sensor: what a simulated sensor showed at each step."""
-GENERATED = ("ddg", "ddg_nograft")
-"""The sources the DDG generator makes chunk by chunk (``DemoStore.generation_outputs``)."""
-_DDG_DONE = "meta/ddg_done"
+GENERATORS = {"ddg": ("ddg", "ddg_nograft"), "residual": ("residual",)}
+"""Each generator -> the sources it makes chunk by chunk (``DemoStore.generation_outputs``); its settings are
+the store's attrs[generator], its record of made chunks ``meta/<generator>_done``."""
+
+
+def generator_of(source: str) -> str | None:
+    """The generator that makes depth ``source``; None for one stored as collected."""
+    return next((g for g, made in GENERATORS.items() if source in made), None)
+
+
+def _done(generator: str) -> str:
+    return f"meta/{generator}_done"
 
 
 class DatasetError(OSError):
@@ -288,8 +301,12 @@ class DemoStore:
         return [name for name, source in DEPTH_SOURCES.items() if source.array in self.root]
 
     def depth(self, source: str, steps: int) -> np.ndarray:
-        """The first ``steps`` frames of depth ``source``; refused if the store lacks them or if the generator
-        has not made all of them yet (chunks no shard has reached are zeros)."""
+        """The first ``steps`` frames of depth ``source`` (``check_depth``)."""
+        return np.asarray(self.root[self.check_depth(source, steps)][:steps])
+
+    def check_depth(self, source: str, steps: int) -> str:
+        """The array of depth ``source``; refused if the store lacks it or if its generator has not made its
+        first ``steps`` frames yet (chunks no shard has reached are zeros)."""
         if source not in DEPTH_SOURCES:
             raise DatasetError(f"unknown depth source {source!r}; choose one of {sorted(DEPTH_SOURCES)}")
         array = DEPTH_SOURCES[source].array
@@ -297,66 +314,71 @@ class DemoStore:
             held = ", ".join(self.depth_sources)
             raise DatasetError(f"{self.path} has no {array} for depth source {source!r} (make it with "
                                f"`{DEPTH_SOURCES[source].made_by}`); it holds {held}")
-        if source in GENERATED and _DDG_DONE in self.root:
-            self._check_generated(array, steps)
-        return np.asarray(self.root[array][:steps])
+        generator = generator_of(source)
+        if generator and _done(generator) in self.root:
+            self._check_generated(generator, array, steps)
+        return array
 
     # --- generated depth (trainer.ddg.generate) -----------------------------------------------------
-    @property
-    def generated_with(self) -> dict | None:
-        """The settings the store's DDG depth was made with, None before the first run."""
-        return self.root.attrs.get("ddg")
+    def generated_with(self, generator: str) -> dict | None:
+        """The settings the store's depth of ``generator`` was made with, None before its first run."""
+        return self.root.attrs.get(generator)
 
-    def drop_generated(self) -> None:
-        """Delete the DDG depth, its record of made chunks and its settings (to make it again otherwise)."""
-        for name in (*(DEPTH_SOURCES[s].array for s in GENERATED), _DDG_DONE):
+    def drop_generated(self, generator: str) -> None:
+        """Delete ``generator``'s depth, its record of made chunks and its settings (to make it again
+        otherwise)."""
+        for name in (*(DEPTH_SOURCES[s].array for s in GENERATORS[generator]), _done(generator)):
             if name in self.root:
                 del self.root[name]
-        self.root.attrs.pop("ddg", None)
+        self.root.attrs.pop(generator, None)
 
-    def generation_outputs(self, settings: dict, chunk: int) -> tuple[dict[str, zarr.Array], zarr.Array]:
-        """Source -> its array (as long as ``data/depth``, zarr chunks of ``chunk`` frames) and the per-chunk
-        record of which are made, created on the first run with ``settings`` recorded; episodes appended
-        since the last run lengthen them. The caller checks ``settings`` against ``generated_with`` first."""
-        if self.generated_with is None:
-            self.root.attrs["ddg"] = settings
+    def generation_outputs(self, generator: str, settings: dict, chunk: int
+                           ) -> tuple[dict[str, zarr.Array], zarr.Array]:
+        """Each source ``generator`` makes -> its array (as long as ``data/depth``, zarr chunks of ``chunk``
+        frames) and the per-chunk record of which are made, created on the first run with ``settings``
+        recorded; episodes appended since the last run lengthen them. The caller checks ``settings`` against
+        ``generated_with`` first."""
+        if self.generated_with(generator) is None:
+            self.root.attrs[generator] = settings
         shape = self.root["data/depth"].shape
         n_chunks = -(-shape[0] // chunk)
-        if _DDG_DONE in self.root:
-            self._grow_generated(shape, n_chunks, chunk)
+        if _done(generator) in self.root:
+            self._grow_generated(generator, shape, n_chunks, chunk)
         outs = {s: self.root.require_array(DEPTH_SOURCES[s].array, shape=shape, dtype="uint16",
-                                           chunks=(chunk, *shape[1:]), fill_value=0) for s in GENERATED}
-        done = self.root.require_array(_DDG_DONE, shape=(n_chunks,), dtype="bool", chunks=(1,),
+                                           chunks=(chunk, *shape[1:]), fill_value=0)
+                for s in GENERATORS[generator]}
+        done = self.root.require_array(_done(generator), shape=(n_chunks,), dtype="bool", chunks=(1,),
                                        fill_value=False)
         return outs, done
 
-    def _grow_generated(self, shape: tuple[int, ...], n_chunks: int, chunk: int) -> None:
+    def _grow_generated(self, generator: str, shape: tuple[int, ...], n_chunks: int, chunk: int) -> None:
         """Episodes appended since the last run (``collect`` resumed into the store): lengthen the outputs and
         the chunk record; a chunk that was the last, partial one then has new frames, so it is to be made
         again (frames are seeded by index: its old frames come out the same)."""
-        old = self.root[DEPTH_SOURCES[GENERATED[0]].array].shape[0]
+        sources = GENERATORS[generator]
+        old = self.root[DEPTH_SOURCES[sources[0]].array].shape[0]
         if old == shape[0]:
             return
-        for source in GENERATED:
+        for source in sources:
             self.root[DEPTH_SOURCES[source].array].resize(shape)
-        done = self.root[_DDG_DONE]
+        done = self.root[_done(generator)]
         done.resize((n_chunks,))
         if old % chunk:
             done[old // chunk] = False
 
-    def _check_generated(self, array: str, frames: int) -> None:
+    def _check_generated(self, generator: str, array: str, frames: int) -> None:
         """Raise unless the generated ``array`` of the first ``frames`` frames is all made: frames appended
         since the last run are missing."""
-        generate = f"`python -m trainer ddg generate --demos {self.path}`"
+        generate = f"`python -m trainer ddg generate --generator {generator} --demos {self.path}`"
         generated = self.root[array].shape[0]
         if generated < frames:
             raise DatasetError(f"{self.path}: {array} holds {generated} frames, the episodes {frames}: the "
-                               f"store grew since DDG depth was generated; run {generate} again")
-        chunk = int(self.generated_with["chunk"])
+                               f"store grew since its depth was generated; run {generate} again")
+        chunk = int(self.generated_with(generator)["chunk"])
         needed = -(-frames // chunk)
-        missing = np.flatnonzero(~np.asarray(self.root[_DDG_DONE][:needed]))
+        missing = np.flatnonzero(~np.asarray(self.root[_done(generator)][:needed]))
         if missing.size:
             raise DatasetError(
-                f"{self.path}: DDG depth of {missing.size} of the {needed} chunks ({chunk} frames each) that "
-                f"these episodes span is not generated yet (first: chunk {missing[0]}); finish it with "
-                f"{generate}, or train on fewer episodes (--episodes)")
+                f"{self.path}: {generator} depth of {missing.size} of the {needed} chunks ({chunk} frames "
+                f"each) that these episodes span is not generated yet (first: chunk {missing[0]}); finish it "
+                f"with {generate}, or train on fewer episodes (--episodes)")

@@ -91,7 +91,7 @@ def test_resume_with_other_settings_is_refused(tiny_demos, tiny_model):
     _run(tiny_demos, tiny_model)
     assert "eta" not in zarr.open_group(str(tiny_demos), mode="r").attrs["ddg"]  # older stores still resume
     for other in ({"steps": 5}, {"steps": 2, "eta": 1.0}):
-        with pytest.raises(DemoStoreError, match="already holds DDG depth"):
+        with pytest.raises(DemoStoreError, match="already holds ddg depth"):
             generate(GenerateConfig(demos=str(tiny_demos), model=str(tiny_model), chunk=8, **other))
 
 

@@ -255,3 +255,47 @@ def test_pairs_hold_out_every_kth_episode_and_stride(paired):
     assert np.array_equal(train.sim, np.concatenate([every.sim[0:4], every.sim[8:12]]))
     assert np.array_equal(load_pairs((str(paired),), holdout_every=0, stride=2).real, every.real[::2])
     assert train.spec == DepthSpec()
+
+
+def test_residual_depth_generated_into_a_store_is_the_generators_in_any_shards_and_fits_read_it(
+        paired, model, tmp_path):
+    """`ddg generate --generator residual`: shard by shard into data/depth_residual, each frame the
+    generator's own under its index; unfinished chunks are refused, and a fit (or a readout) then reads
+    exactly those."""
+    import shutil
+
+    from trainer.dataset import DatasetError, DemoStore
+    from trainer.student.steps import LabelledSteps
+
+    store = tmp_path / "pairs.zarr"
+    shutil.copytree(paired, store)
+    run = ["generate", "--generator", "residual", "--demos", str(store), "--model", str(model),
+           "--steps", "2", "--chunk", "4", "--batch", "3", "--threads", "1"]
+    assert main([*run, "--shard", "1/2"]) == 0
+    demos = DemoStore.open(store)
+    with pytest.raises(DatasetError, match=r"residual depth of 2 of the 4 chunks .* \(first: chunk 0\)"):
+        LabelledSteps([store], 1, 1, depth=True, chunks=False, depth_source="residual")
+    assert main([*run, "--shard", "0/2"]) == 0
+    sim = demos.depth("gt", demos.n_steps)
+    want = ResidualGenerator(model, steps=2, threads=1)(sim, np.arange(len(sim)))
+    np.testing.assert_array_equal(demos.depth("residual", demos.n_steps), want)
+    steps = LabelledSteps([store], 1, 1, depth=True, chunks=False, depth_source="residual")
+    np.testing.assert_array_equal(steps.frames.numpy().view(np.uint16), want)
+    assert demos.generated_with("ddg") is None and demos.generated_with("residual")["steps"] == 2
+
+
+def test_vs_sensor_sets_each_source_beside_the_sensors_frames(paired, model, tiny_model, tmp_path, capsys):
+    """`ddg vs-sensor` on a paired store: every source (the residual model's stage I among them) judged
+    against the sensor's frames; the sensor itself shares all its holes, the clean frames none and are never
+    off; the grid is drawn."""
+    out = tmp_path / "vs.json"
+    assert main(["vs-sensor", "--store", str(paired), "--ddg", str(tiny_model), "--residual", str(model),
+                 "--steps", "1", "--every", "1", "--bootstrap", "2", "--threads", "1", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["sources"]
+    assert list(rows) == ["sensor", "gt", "randnoise", f"{tiny_model.name} grafted",
+                          f"{tiny_model.name} ungrafted", f"{model.name} stage I"]
+    assert rows["sensor"]["sensor_holes_shared_pct"] == 100.0
+    assert rows["gt"]["sensor_holes_shared_pct"] == 0.0 and rows["gt"]["flat_off_20mm_pct"] == 0.0
+    assert rows["sensor"]["flat_holes_pct"] > 0 and len(rows["gt"]["fid_ci95"]) == 2
+    assert out.with_suffix(".png").is_file() and "| gt |" in capsys.readouterr().out
+    assert main(["vs-sensor", "--store", str(tmp_path / "nope.zarr")]) == 2

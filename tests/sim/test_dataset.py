@@ -147,7 +147,7 @@ def test_an_old_store_opens_and_reports_its_depth_sources_and_what_was_generated
     store = DemoStore.open(tmp_path / "old.zarr")
     assert store.n_episodes == 2 and store.n_steps == 10 and store.attrs["sensor"] == "stereo"
     assert store.depth_sources == ["gt", "randnoise", "ddg", "ddg_nograft", "sensor"]
-    assert store.generated_with == {"model": "m", "steps": 2, "seed": 0, "chunk": 4}
+    assert store.generated_with("ddg") == {"model": "m", "steps": 2, "seed": 0, "chunk": 4}
     clean = store.root["data/depth"][:]
     np.testing.assert_array_equal(store.depth("sensor", 10), clean // 2)
     np.testing.assert_array_equal(store.depth("ddg", 6), clean[:6] + 1)  # episode 0: chunks 0 and 1, made
@@ -160,7 +160,7 @@ def test_an_old_store_opens_and_reports_its_depth_sources_and_what_was_generated
 def test_a_store_names_the_command_that_makes_a_depth_source_it_lacks(tmp_path) -> None:
     store = _create(tmp_path / "d.zarr")
     store.append(_episode(4, 0))
-    assert store.depth_sources == ["gt", "randnoise"] and store.generated_with is None
+    assert store.depth_sources == ["gt", "randnoise"] and store.generated_with("ddg") is None
     with pytest.raises(DatasetError, match=r"has no data/depth_ddg for depth source 'ddg' \(make it with "
                                            r"`python -m trainer ddg generate`\); it holds gt, randnoise"):
         store.depth("ddg", 4)
@@ -170,13 +170,13 @@ def test_generated_depth_grows_with_the_store_and_makes_its_partial_chunk_again(
     store = _create(tmp_path / "d.zarr")
     store.append(_episode(6, 0))
     settings = {"model": "m", "steps": 2, "seed": 0, "chunk": 4}
-    outs, done = store.generation_outputs(settings, chunk=4)
+    outs, done = store.generation_outputs("ddg", settings, chunk=4)
     assert set(outs) == {"ddg", "ddg_nograft"} and outs["ddg"].shape == (6, 96, 128) and done.shape == (2,)
-    assert outs["ddg"].chunks == (4, 96, 128) and store.generated_with == settings
+    assert outs["ddg"].chunks == (4, 96, 128) and store.generated_with("ddg") == settings
     done[:] = True
     store.append(_episode(5, 1))  # collect resumed: frames 6..10 are new, chunk 1 ([4, 8)) is partly new
-    outs, done = store.generation_outputs(settings, chunk=4)
+    outs, done = store.generation_outputs("ddg", settings, chunk=4)
     assert outs["ddg_nograft"].shape == (11, 96, 128) and done[:].tolist() == [True, False, False]
-    store.drop_generated()
-    assert store.depth_sources == ["gt", "randnoise"] and store.generated_with is None
+    store.drop_generated("ddg")
+    assert store.depth_sources == ["gt", "randnoise"] and store.generated_with("ddg") is None
     assert "ddg_done" not in store.root["meta"]

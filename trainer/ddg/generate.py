@@ -1,4 +1,5 @@
-"""Add ``data/depth_ddg`` and ``data/depth_ddg_nograft`` to a demo store, batched, resumable and shardable.
+"""Add a generator's depth to a demo store, batched, resumable and shardable: the DDG's ``data/depth_ddg`` and
+``data/depth_ddg_nograft``, or the residual diffusion's ``data/depth_residual`` (``--generator residual``).
 
 Work is split in chunks of ``chunk`` frames (the output arrays' zarr chunks), so each chunk is written by
 exactly one shard and the store records it (``DemoStore.generation_outputs``): a killed run resumes where it
@@ -11,7 +12,7 @@ from __future__ import annotations
 
 import fcntl
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,13 +21,18 @@ import numpy as np
 import zarr
 from tqdm import tqdm
 
-from trainer.dataset import DemoStore
+from trainer.dataset import GENERATORS, DemoStore
 
-from .baselines import DEFAULT_MODEL
+from .baselines import DEFAULT_MODEL, DEFAULT_RESIDUAL
 from .model import model_id
-from .sample import Generator
+from .residual import ResidualGenerator, residual_model_id
+from .sample import Generator, check_frames
 
 LOCK_NAME = "ddg_generate.lock"
+SHIPPED = {"ddg": DEFAULT_MODEL, "residual": DEFAULT_RESIDUAL}
+"""Each generator's model when --model is not given."""
+Generate = Callable[[np.ndarray, np.ndarray], dict[str, np.ndarray]]
+"""(simulated frames, their indices in the store) -> each source the generator makes -> its frames."""
 
 
 class DemoStoreError(ValueError):
@@ -36,10 +42,14 @@ class DemoStoreError(ValueError):
 @dataclass(frozen=True)
 class GenerateConfig:
     demos: str = ""
-    """Demo store (zarr) holding data/depth uint16 [N, H, W] mm: the model's crop at any resolution (the
-    generator runs at its own and its holes are carried back, nearest-neighbour)."""
-    model: str = str(DEFAULT_MODEL)
-    """DDG model directory."""
+    """Demo store (zarr) holding data/depth uint16 [N, H, W] mm: for the DDG, the model's crop at any
+    resolution (the generator runs at its own and its holes are carried back, nearest-neighbour); for the
+    residual diffusion, the model's resolution."""
+    generator: str = "ddg"
+    """ddg (data/depth_ddg and data/depth_ddg_nograft) or residual (data/depth_residual: the residual depth
+    diffusion, trainer/ddg/residual.py, every stage its model has)."""
+    model: str = ""
+    """The generator's model directory (default: the shipped one, models/ddg or models/residual)."""
     steps: int = 10
     """DDIM steps."""
     eta: float = 0.0
@@ -59,8 +69,12 @@ class GenerateConfig:
     mode: str = "split"
     """How a batch is spread over the cores: split | intra | intra_spin (see ``sample.SESSION_MODES``)."""
     replace: bool = False
-    """Drop DDG depth that the store holds from other settings (another model, steps, seed or chunk) and start
-    over, instead of refusing: for a copy of a store made to hold another generator's depth."""
+    """Drop this generator's depth that the store holds from other settings (another model, steps, seed or
+    chunk) and start over, instead of refusing: for a copy of a store made to hold another model's depth."""
+
+    @property
+    def model_dir(self) -> str:
+        return self.model or str(SHIPPED[self.generator])
 
     def shard_pair(self) -> tuple[int, int]:
         try:
@@ -74,36 +88,50 @@ class GenerateConfig:
 
 def generate(cfg: GenerateConfig) -> dict:
     """Fill this shard's missing chunks; returns {"frames", "seconds", "fps"}."""
+    if cfg.generator not in GENERATORS:
+        raise DemoStoreError(f"--generator {cfg.generator!r}: choose one of {sorted(GENERATORS)}")
     store = _open(cfg.demos)
     depth = store.root["data/depth"]
     n = depth.shape[0]
     i, shards = cfg.shard_pair()
-    # a store made by hand (tests) may carry no spec: its frames are then taken to be the model's
-    store_spec = store.depth_spec if "depth_spec" in store.root.attrs else None
-    gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, mode=cfg.mode,
-                    eta=cfg.eta, frames=store_spec)
-    gen.check_frames(depth)
+    gen = _generator(cfg, store)
     needed = -(-(_frames_of(store, cfg.episodes) if cfg.episodes else n) // cfg.chunk)  # chunks to fill
     with _exclusive(cfg.demos):  # shards started together: the first creates the outputs, the rest see them
         outs, done = _outputs(_open(cfg.demos), cfg)  # reopened: attrs as the holder left them
     todo = [k for k in range(needed) if k % shards == i and not done[k]]
     frames, t0 = 0, time.perf_counter()
-    bar = tqdm(todo, desc=f"ddg generate shard {cfg.shard}", unit="chunk")
+    bar = tqdm(todo, desc=f"{cfg.generator} generate shard {cfg.shard}", unit="chunk")
     for k in bar:
         lo, hi = k * cfg.chunk, min(n, (k + 1) * cfg.chunk)
         sim = np.asarray(depth[lo:hi])
         parts = [gen(sim[b:b + cfg.batch], np.arange(lo + b, min(hi, lo + b + cfg.batch)))
                  for b in range(0, hi - lo, cfg.batch)]
-        outs["ddg"][lo:hi] = np.concatenate([p[0] for p in parts])
-        outs["ddg_nograft"][lo:hi] = np.concatenate([p[1] for p in parts])
+        for source, out in outs.items():
+            out[lo:hi] = np.concatenate([p[source] for p in parts])
         done[k] = True
         frames += hi - lo
         bar.set_postfix(fps=f"{frames / (time.perf_counter() - t0):.1f}")
     seconds = time.perf_counter() - t0
     stats = {"frames": frames, "seconds": round(seconds, 2), "fps": round(frames / max(seconds, 1e-9), 2)}
-    print(f"generated {frames} frames in {seconds:.1f} s: {stats['fps']} frames/s "
+    print(f"generated {frames} frames of {cfg.generator} depth in {seconds:.1f} s: {stats['fps']} frames/s "
           f"(DDIM {cfg.steps} steps, batch {cfg.batch}, {cfg.threads} cores {cfg.mode}, shard {cfg.shard})")
     return stats
+
+
+def _generator(cfg: GenerateConfig, store: DemoStore) -> Generate:
+    """``cfg``'s generator; it refuses the store's frames here, before any work."""
+    depth = store.root["data/depth"]
+    if cfg.generator == "residual":
+        residual = ResidualGenerator(cfg.model_dir, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads,
+                                     mode=cfg.mode, eta=cfg.eta)
+        check_frames(depth, residual.spec)
+        return lambda sim, indices: {"residual": residual(sim, indices)}
+    # a store made by hand (tests) may carry no spec: its frames are then taken to be the model's
+    store_spec = store.depth_spec if "depth_spec" in store.root.attrs else None
+    ddg = Generator(cfg.model_dir, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, mode=cfg.mode,
+                    eta=cfg.eta, frames=store_spec)
+    ddg.check_frames(depth)
+    return lambda sim, indices: dict(zip(GENERATORS["ddg"], ddg(sim, indices), strict=True))
 
 
 def _frames_of(store: DemoStore, episodes: int) -> int:
@@ -139,14 +167,15 @@ def _exclusive(path: str) -> Iterator[None]:
 
 
 def _outputs(store: DemoStore, cfg: GenerateConfig) -> tuple[dict[str, zarr.Array], zarr.Array]:
-    """The store's DDG outputs for ``cfg``'s settings; DDG depth made with others is refused, or dropped with
-    ``--replace``."""
-    settings = {"model": model_id(cfg.model), "steps": cfg.steps, "seed": cfg.seed,
+    """The store's outputs of ``cfg``'s generator for its settings; its depth made with others is refused, or
+    dropped with ``--replace``."""
+    name = model_id(cfg.model_dir) if cfg.generator == "ddg" else residual_model_id(cfg.model_dir)
+    settings = {"model": name, "steps": cfg.steps, "seed": cfg.seed,
                 "chunk": cfg.chunk, **({"eta": cfg.eta} if cfg.eta else {})}  # stores made before eta resume
-    previous = store.generated_with
+    previous = store.generated_with(cfg.generator)
     if previous is not None and previous != settings:
         if not cfg.replace:
-            raise DemoStoreError(f"store already holds DDG depth made with {previous}, not {settings}; "
-                                 "pass --replace to drop it and regenerate")
-        store.drop_generated()
-    return store.generation_outputs(settings, cfg.chunk)
+            raise DemoStoreError(f"store already holds {cfg.generator} depth made with {previous}, not "
+                                 f"{settings}; pass --replace to drop it and regenerate")
+        store.drop_generated(cfg.generator)
+    return store.generation_outputs(cfg.generator, settings, cfg.chunk)

@@ -106,6 +106,11 @@ def stage_dirs(model_dir: str | Path, stages: int = 0) -> list[Path]:
     return have[:stages or len(have)]
 
 
+def residual_model_id(model_dir: str | Path) -> str:
+    """Each stage's ``model_id``: a store's record of which residual model made its depth."""
+    return "+".join(model_id(d) for d in stage_dirs(model_dir))
+
+
 class ResidualGenerator:
     """Simulated uint16 mm frames [N, H, W] -> the sensor's depth as the residual diffusion makes it: stage I,
     then stage II on its output when the model has one (or ``stages`` of them).

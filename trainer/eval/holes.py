@@ -42,16 +42,22 @@ def _component_sizes(hole: np.ndarray) -> np.ndarray:
     return np.bincount(labels.ravel())[1:] if n else np.zeros(0)
 
 
+def edge_band(frame: np.ndarray) -> np.ndarray:
+    """bool [H, W]: the pixels within ``EDGE_BAND_PX`` of a depth edge of the uint16 mm frame's geometry (its
+    holes filled first, so a hole's rim is not an edge)."""
+    geo = fill_holes(frame).astype(np.float32)
+    jump = np.zeros(frame.shape, bool)
+    jump[1:] |= np.abs(np.diff(geo, axis=0)) > EDGE_MM_PER_PX
+    jump[:, 1:] |= np.abs(np.diff(geo, axis=1)) > EDGE_MM_PER_PX
+    return ndimage.binary_dilation(jump, iterations=EDGE_BAND_PX)
+
+
 def _edge_rates(frames: np.ndarray) -> tuple[float, float]:
     near_h = near_n = flat_h = flat_n = 0
     for f in frames:
         if not (f > 0).any():
             continue
-        geo = fill_holes(f).astype(np.float32)
-        jump = np.zeros(f.shape, bool)
-        jump[1:] |= np.abs(np.diff(geo, axis=0)) > EDGE_MM_PER_PX
-        jump[:, 1:] |= np.abs(np.diff(geo, axis=1)) > EDGE_MM_PER_PX
-        near = ndimage.binary_dilation(jump, iterations=EDGE_BAND_PX)
+        near = edge_band(f)
         hole = f == 0
         near_h, near_n = near_h + hole[near].sum(), near_n + near.sum()
         flat_h, flat_n = flat_h + hole[~near].sum(), flat_n + (~near).sum()

@@ -26,7 +26,7 @@ from trainer.sim.env import EnvConfig
 from trainer.sim.labels import GRASP_YAW, OFFSET, READOUT, SIZE
 from trainer.student import checkpoint
 from trainer.student.dagger import RoundSpec, collect_round
-from trainer.student.steps import LabelledSteps
+from trainer.student.steps import STORED, LabelledSteps
 
 NEAR_M = 0.05
 """Frames with the hand this near the object (horizontally) are the ones that decide the grasp."""
@@ -144,13 +144,16 @@ def measure(ckpt_path: Path, store: Path, device: torch.device | str = "cpu",
     estimate, labels = readouts(ckpt_path, store, device, depth_source=depth_source)
     demos = DemoStore.open(store)
     return {"checkpoint": str(ckpt_path), "store": str(store), "depth_source": depth_source,
-            "sensor": demos.attrs.get("sensor") if depth_source == "sensor" else "clean",
+            "sensor": demos.attrs.get("sensor") if depth_source == "sensor" else depth_source,
             **errors(estimate, labels, demos.episode_ends),
             "near_by_kind": by_kind(estimate, labels, demos.episode_ends, demos.kinds)}
 
 
-def _source(store: Path, sensor: str) -> str:
-    """The frames to measure on: the sensor's where the store keeps them (``--sensor clean``: clean ones)."""
+def _source(store: Path, sensor: str, depth_source: str) -> str:
+    """The frames to measure on: ``depth_source`` if given, else the sensor's where the store keeps them
+    (``--sensor clean``: clean ones)."""
+    if depth_source:
+        return depth_source
     kept = DemoStore.open(store).attrs.get("sensor")
     if sensor and sensor != "clean" and kept != sensor:
         raise ValueError(f"{store} keeps the frames of sensor {kept!r}, not {sensor!r}")
@@ -186,6 +189,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="what the learner sees while the store is collected (ddg, stereo ...: "
                         "trainer.sim.sensors), kept beside the clean frames; the readout is then measured on "
                         "those frames (default: a store's sensor frames if it has them, else the clean ones)")
+    p.add_argument("--depth-source", choices=sorted(STORED), default="",
+                   help="measure on these frames of the store instead: gt, sensor, or a generator's "
+                        "(`trainer ddg generate`, e.g. residual)")
     args = p.parse_args(argv)
     if not 0.0 <= args.beta <= 1.0:
         p.error(f"--beta {args.beta}: a share, between 0 and 1")
@@ -199,7 +205,8 @@ def main(argv: list[str] | None = None) -> int:
                           workers=args.workers)
         if args.collect_only:
             return 0
-        print(json.dumps(measure(args.checkpoint, args.store, depth_source=_source(args.store, args.sensor)),
+        print(json.dumps(measure(args.checkpoint, args.store, depth_source=_source(args.store, args.sensor,
+                                                                                  args.depth_source)),
                          indent=1))
     except (ValueError, OSError) as exc:  # an unknown kind is an ObjectError, a ValueError
         print(f"error: {exc}", file=sys.stderr)

@@ -58,8 +58,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--stores", type=Path, nargs="+", required=True, help="labelled stores to fit on")
     p.add_argument("--out", type=Path, required=True, help="folder for ckpt.pt and loss.png (resumed)")
     p.add_argument("--depth-source", choices=sorted(STORED), default="gt",
-                   help="the frames to fit on: gt (clean) or sensor (what `trainer student readout --sensor` "
-                        "showed the learner)")
+                   help="the frames to fit on: gt (clean), sensor (what `trainer student readout --sensor` "
+                        "showed the learner) or a generator's (`trainer ddg generate`)")
     p.add_argument("--threads", type=int, default=0, help="torch threads on the CPU (0 = torch's default)")
     add_dataclass_args(p, DistillConfig)
     args = p.parse_args(argv)

@@ -27,8 +27,9 @@ class StepsError(ValueError):
     """Stores the recipe cannot train on (no labels, another resolution, no frames of the depth asked)."""
 
 
-STORED = {source: DEPTH_SOURCES[source].array for source in ("gt", "sensor")}
-"""The depth sources a fit reads as stored: the clean frames, or those a sensor showed the learner."""
+STORED = {source: DEPTH_SOURCES[source].array for source in DEPTH_SOURCES if source != "randnoise"}
+"""The depth sources a fit reads as stored: the clean frames, those a sensor showed the learner, or a
+generator's made from the clean ones (``trainer ddg generate``)."""
 
 
 @dataclass(frozen=True)
@@ -48,8 +49,8 @@ class LabelledSteps:
                  chunks: bool = True, device: torch.device | str = "cpu", depth_source: str = "gt") -> None:
         """``chunks``: read the expert's action chunks too (every store must hold them); without, the steps
         serve perception alone, and stores of frame labels only (a ``RoundSpec.horizon`` 0 round) will do.
-        ``depth_source``: ``gt`` (the clean frames) or ``sensor`` (what a round's ``RoundSpec.sensor``
-        showed the learner)."""
+        ``depth_source``: ``gt`` (the clean frames), ``sensor`` (what a round's ``RoundSpec.sensor``
+        showed the learner) or a generated source (``STORED``)."""
         self.device = torch.device(device)
         if depth_source not in STORED:
             raise StepsError(f"unknown depth source {depth_source!r}; choose one of {sorted(STORED)}")
@@ -57,8 +58,12 @@ class LabelledSteps:
         array = STORED[depth_source]
         for store, p in zip(stores, paths, strict=True):
             if depth and array not in store.root:
-                raise StepsError(f"{p} keeps no {array}: collect it with a sensor (`trainer student readout "
-                                 f"--sensor`), or fit on --depth-source gt")
+                make = (f"make it with `{DEPTH_SOURCES[depth_source].made_by} --demos {p}`"
+                        if depth_source != "sensor" else
+                        "collect it with a sensor (`trainer student readout --sensor`)")
+                raise StepsError(f"{p} keeps no {array}: {make}, or fit on --depth-source gt")
+            if depth:
+                store.check_depth(depth_source, store.n_steps)  # a generator's unfinished chunks are zeros
         parts = [self._read(store, p, action_horizon if chunks else 0)
                  for store, p in zip(stores, paths, strict=True)]
         self.spec: DepthSpec = parts[0]["spec"]
