@@ -299,3 +299,14 @@ def test_vs_sensor_sets_each_source_beside_the_sensors_frames(paired, model, tin
     assert rows["sensor"]["flat_holes_pct"] > 0 and len(rows["gt"]["fid_ci95"]) == 2
     assert out.with_suffix(".png").is_file() and "| gt |" in capsys.readouterr().out
     assert main(["vs-sensor", "--store", str(tmp_path / "nope.zarr")]) == 2
+
+
+def test_bench_times_the_residual_generator_in_each_setting(paired, model, tmp_path):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--generator", "residual", "--model", str(model), "--demos", str(paired),
+                 "--steps", "1", "2", "--batches", "2", "--modes", "split", "--frames", "4", "--rounds", "2",
+                 "--threads", "1", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["steps"], r["batch"], r["calls"]) for r in rows] == [(1, 2, 2), (2, 2, 2)]  # warm-up not counted
+    assert all(r["fps"] > 0 for r in rows)
+    assert main(["bench", "--generator", "gan"]) == 2

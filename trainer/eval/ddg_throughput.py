@@ -1,9 +1,11 @@
 """``python -m trainer ddg bench``: generation throughput at the policy resolution, side by side.
 
-Every (session mode, batch, DDIM steps) setting runs the whole ``Generator`` (prior, DDIM loop, decoding,
-grafting) on the same frames. Settings take turns within each round, so a machine whose load drifts (a shared
-one) slows them alike. Per call it records wall time and process CPU time per frame; the report gives medians
-and 99th percentiles over all calls, and frames/s = 1 / median wall time per frame.
+Every (session mode, batch, DDIM steps) setting runs the whole generator on the same frames: the DDG's
+``Generator`` (prior, DDIM loop, decoding, grafting) or, with ``--generator residual``, the residual
+diffusion's (every stage of its model, each a DDIM loop, then decoding). Settings take turns within each
+round, so a machine whose load drifts (a shared one) slows them alike. Per call it records wall time and
+process CPU time per frame; the report gives medians and 99th percentiles over all calls, and frames/s =
+1 / median wall time per frame.
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.ddg.baselines import DEFAULT_MODEL
+from trainer.ddg.generate import SHIPPED
+from trainer.ddg.residual import ResidualGenerator
 from trainer.ddg.sample import SESSION_MODES, Generator
 
 from .sim_frames import from_demos, rendered
@@ -24,10 +27,13 @@ from .sim_frames import from_demos, rendered
 
 @dataclass(frozen=True)
 class BenchConfig:
-    model: str = str(DEFAULT_MODEL)
-    """DDG model directory."""
+    generator: str = "ddg"
+    """ddg or residual."""
+    model: str = ""
+    """The generator's model directory (default: the shipped one, models/ddg or models/residual)."""
     demos: str = ""
-    """Demo store to take frames from (default: render randomised hil_sim.world scenes)."""
+    """Demo store to take frames from (default: render randomised hil_sim.world scenes, at the policy's
+    96x128: a residual model made at another resolution needs a store of its own)."""
     steps: tuple[int, ...] = (5, 10, 20)
     """DDIM step counts."""
     batches: tuple[int, ...] = (1, 16)
@@ -45,9 +51,13 @@ class BenchConfig:
 
 
 def bench(cfg: BenchConfig) -> dict:
+    if cfg.generator not in SHIPPED:
+        raise ValueError(f"--generator {cfg.generator!r}: choose one of {sorted(SHIPPED)}")
     frames = from_demos(cfg.demos, cfg.frames) if cfg.demos else rendered(cfg.frames)
     settings = list(itertools.product(cfg.modes, cfg.batches, cfg.steps))
-    gens = {s: Generator(cfg.model, steps=s[2], threads=cfg.threads, mode=s[0]) for s in settings}
+    make = ResidualGenerator if cfg.generator == "residual" else Generator
+    model = cfg.model or str(SHIPPED[cfg.generator])
+    gens = {s: make(model, steps=s[2], threads=cfg.threads, mode=s[0]) for s in settings}
     samples: dict[tuple, list[tuple[float, float]]] = {s: [] for s in settings}
     for r in range(cfg.rounds):
         for s in settings:
@@ -62,7 +72,8 @@ def bench(cfg: BenchConfig) -> dict:
     return result
 
 
-def _timed_calls(gen: Generator, frames: np.ndarray, batch: int) -> list[tuple[float, float]]:
+def _timed_calls(gen: Generator | ResidualGenerator, frames: np.ndarray, batch: int
+                 ) -> list[tuple[float, float]]:
     """(wall ms per frame, CPU ms per frame) of each call over ``frames`` in batches."""
     out = []
     for lo in range(0, len(frames), batch):
