@@ -22,7 +22,7 @@ referenced. The sources: ``gt``, ``randnoise``, each DDG with and without grafti
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,7 @@ import torch
 from runtime.preprocess import DepthSpec
 from trainer.dataset import DatasetError, DemoStore
 from trainer.ddg.baselines import DEFAULT_MODEL, randnoise
+from trainer.ddg.model import load_config
 from trainer.ddg.residual import ResidualGenerator, generate_frames, stage_dirs
 from trainer.ddg.sample import Generator
 
@@ -135,7 +136,9 @@ def _sources(cfg: VsSensorConfig, clean: np.ndarray, spec: DepthSpec) -> dict[st
     out = {"gt": clean, "randnoise": np.stack([randnoise(d, rng) for d in clean])}
     index = np.arange(len(clean))
     for model in cfg.ddg:
-        gen = Generator(model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, frames=spec)
+        own = load_config(model)["depth_spec"]  # raw mm frames: the model reads them over its own range
+        frames = replace(spec, near_m=own.near_m, far_m=own.far_m)
+        gen = Generator(model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, frames=frames)
         parts = [gen(clean[i:i + 16], index[i:i + 16]) for i in range(0, len(clean), 16)]
         name = Path(model).name
         out[f"{name} grafted"] = np.concatenate([p[0] for p in parts])
