@@ -15,6 +15,7 @@ from trainer.ddg.model import UNetConfig, build_unet, ddim_scheduler, ddpm_sched
 from trainer.ddg.pairs import load_pairs
 from trainer.ddg.point_patches import POINT_SCALE, PatchError, point_patches, tile
 from trainer.ddg.residual import (
+    ResidualCode,
     ResidualGenerator,
     decode,
     encode,
@@ -28,6 +29,7 @@ from trainer.diffusion import training_target
 
 from .conftest import scene
 
+LINEAR = ResidualCode(0.5)
 TINY = ["--channels", "8", "8", "16", "--batch", "2", "--patch", "32", "32", "--threads", "1"]
 
 
@@ -58,9 +60,9 @@ def test_a_zero_residual_returns_the_simulated_frame_and_the_hole_channel_its_ho
     sim[:, :3] = 0  # the simulator sees nothing there: nothing to add a residual to
     x0 = np.zeros((2, 2, 96, 128), np.float32)
     x0[:, 1] = -1.0
-    assert np.array_equal(decode(sim, x0, 0.5), sim)
+    assert np.array_equal(decode(sim, x0, LINEAR), sim)
     x0[:, 1, 40:50, 60:70] = 0.2
-    out = decode(sim, x0, 0.5)
+    out = decode(sim, x0, LINEAR)
     assert (out[:, 40:50, 60:70] == 0).all() and (out[:, 41:50, 70:] == sim[:, 41:50, 70:]).all()
     # the same through the generator, its net replaced by one that knows x0 (DDIM then lands on it)
     gen = ResidualGenerator(model, steps=4)
@@ -80,11 +82,15 @@ def test_encode_then_decode_gives_back_the_sensor_frame():
     sim = scene(rng)[None]
     sensor = (sim.astype(int) + rng.integers(-300, 300, sim.shape)).astype(np.uint16)
     sensor[:, 10:20, 30:60] = 0
-    x0 = encode(sim, sensor, 0.5)
-    assert x0.shape == (1, 2, 96, 128) and x0.min() >= -1 and x0.max() <= 1
-    assert np.array_equal(decode(sim, x0, 0.5), sensor)
-    far = sim + 700  # beyond the residual's range: clipped to it
-    assert np.array_equal(decode(sim, encode(sim, far, 0.5), 0.5), sim + 500)
+    for code in (LINEAR, ResidualCode(0.5, 255.0)):
+        x0 = encode(sim, sensor, code)
+        assert x0.shape == (1, 2, 96, 128) and x0.min() >= -1 and x0.max() <= 1
+        assert np.array_equal(decode(sim, x0, code), sensor)
+        far = sim + 700  # beyond the residual's range: clipped to it
+        assert np.array_equal(decode(sim, encode(sim, far, code), code), sim + 500)
+    # companding spreads the small errors: 4 mm is a fifth of the unit range, not 0.008 of it
+    small = encode(sim, sim + 4, ResidualCode(0.5, 255.0))[0, 0]
+    assert np.allclose(small[sim[0] > 0], 0.2005, atol=1e-3)
 
 
 def test_point_patches_invert_to_the_depth_patch(paired):
@@ -181,7 +187,7 @@ def test_a_tiny_stage_one_overfits_a_constant_residual():
         frame[r:r + 10, c:c + 10] = 900
     sensor = sim + 40
     sensor[sim < 950] = 0
-    x0, c = encode(sim, sensor, 0.1), stage_condition(sim, DepthSpec(), 0.1)
+    x0, c = encode(sim, sensor, ResidualCode(0.1)), stage_condition(sim, DepthSpec(), ResidualCode(0.1))
     ucfg = UNetConfig(channels=(8, 8, 16))
     unet, sched = build_unet(ucfg, DepthSpec(), stage_io(1)), ddpm_scheduler(ucfg)
     opt = torch.optim.AdamW(unet.parameters(), lr=3e-3)
@@ -205,7 +211,7 @@ def test_a_tiny_stage_one_overfits_a_constant_residual():
             return unet(torch.from_numpy(x), torch.full((len(x),), t)).sample.numpy()
 
     x = ddim_reverse(eps_fn, c, frame_noise(0, np.arange(8), (32, 32), channels=2), ddim_scheduler(ucfg, 5))
-    out = decode(sim, x, 0.1)
+    out = decode(sim, x, ResidualCode(0.1))
     both = (out > 0) & (sensor > 0)
     assert abs(np.median(out[both].astype(int) - sim[both]) - 40) <= 8
     assert ((out == 0) == (sensor == 0)).mean() > 0.93  # ~0.97; ~0.81 with the condition zeroed
@@ -290,7 +296,8 @@ def test_vs_sensor_sets_each_source_beside_the_sensors_frames(paired, model, tin
     off; the grid is drawn."""
     out = tmp_path / "vs.json"
     assert main(["vs-sensor", "--store", str(paired), "--ddg", str(tiny_model), "--residual", str(model),
-                 "--steps", "1", "--every", "1", "--bootstrap", "2", "--threads", "1", "--json", str(out)]) == 0
+                 "--steps", "1", "--every", "1", "--bootstrap", "2", "--threads", "1",
+                 "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["sources"]
     assert list(rows) == ["sensor", "gt", "randnoise", f"{tiny_model.name} grafted",
                           f"{tiny_model.name} ungrafted", f"{model.name} stage I"]
@@ -307,6 +314,7 @@ def test_bench_times_the_residual_generator_in_each_setting(paired, model, tmp_p
                  "--steps", "1", "2", "--batches", "2", "--modes", "split", "--frames", "4", "--rounds", "2",
                  "--threads", "1", "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["rows"]
-    assert [(r["steps"], r["batch"], r["calls"]) for r in rows] == [(1, 2, 2), (2, 2, 2)]  # warm-up not counted
+    # (steps, batch, calls): 2 calls of 2 frames per round, the warm-up round not counted
+    assert [(r["steps"], r["batch"], r["calls"]) for r in rows] == [(1, 2, 2), (2, 2, 2)]
     assert all(r["fps"] > 0 for r in rows)
     assert main(["bench", "--generator", "gan"]) == 2

@@ -26,7 +26,7 @@ from .discriminator import caught, load_discriminator
 from .model import RESIDUAL_SCALE, UNetConfig, build_unet, load_config, save_model
 from .pairs import Pairs, load_pairs
 from .point_patches import untile
-from .residual import STAGES, encode, stage1_outputs, stage_condition, stage_dirs, stage_io
+from .residual import STAGES, ResidualCode, encode, stage1_outputs, stage_condition, stage_dirs, stage_io
 from .train import plot_losses, train
 
 
@@ -46,6 +46,9 @@ class StageConfig:
     """The residual's range (m): (sensor - sim) is clipped to +- this and scaled to [-1, 1]. 0.5 m covers the
     stereo sensor's errors to their 99th percentile (429 mm, docs/ddg.md); a smaller range spreads the small
     errors over more of [-1, 1]. Stage II takes stage I's."""
+    residual_mu: float = 255.0
+    """mu-law companding of the residual (``residual.ResidualCode``; 0 = linear): spreads the sensor's few-mm
+    errors over much of [-1, 1]. Stage II takes stage I's."""
     far_m: float = 6.0
     """Far end (m) of the range the condition c sees (the D455 measures to ~6 m, and a stereo sensor's error
     grows with range: at the policy's 1.5 m the far floor is one flat value). Stage II takes stage I's."""
@@ -93,18 +96,20 @@ def fit_stage(cfg: StageConfig) -> Path:
     pairs = load_pairs(cfg.store, "train", cfg.holdout_every, cfg.stride)
     spec = _spec(cfg, pairs)
     name = STAGES[cfg.stage - 1]
-    x0 = encode(pairs.sim, pairs.real, cfg.residual_m)
+    code = ResidualCode(cfg.residual_m, cfg.residual_mu)
+    x0 = encode(pairs.sim, pairs.real, code)
     if cfg.stage == 1:
-        arrays, record = (x0, stage_condition(pairs.sim, spec, cfg.residual_m)), {}
+        arrays, record = (x0, stage_condition(pairs.sim, spec, code)), {}
     else:
-        arrays, record = _stage2_arrays(cfg, pairs, x0, spec)
+        arrays, record = _stage2_arrays(cfg, pairs, x0, spec, code)
     ucfg, io = UNetConfig(channels=cfg.channels, prediction=cfg.prediction), stage_io(cfg.stage)
     run, title = Path(cfg.run) / name, f"residual stage {cfg.stage} training loss"
     run.mkdir(parents=True, exist_ok=True)
     ema, losses, minutes = train(build_unet(ucfg, spec, io), ucfg, arrays, cfg, run, f"residual {name}",
                                  title)
     out = Path(cfg.out) / name
-    extra = {"x0_scale": RESIDUAL_SCALE, "io": list(io), "residual_m": cfg.residual_m, "stage": cfg.stage,
+    extra = {"x0_scale": RESIDUAL_SCALE, "io": list(io), "residual_m": cfg.residual_m,
+             "residual_mu": cfg.residual_mu, "stage": cfg.stage,
              "train": {**asdict(cfg), "steps_done": len(losses), "train_minutes": round(minutes, 2),
                        "frames": len(pairs)}, **record}
     save_model(out, ema, ucfg, spec, extra)
@@ -121,8 +126,9 @@ def loss_weights(hit: np.ndarray, shape: tuple[int, int], p: int, omega: float, 
 def _check(cfg: StageConfig) -> None:
     if cfg.stage not in (1, 2):
         raise ValueError(f"--stage must be 1 or 2, got {cfg.stage}")
-    if cfg.residual_m <= 0:
-        raise ValueError(f"--residual-m must be positive, got {cfg.residual_m}")
+    if cfg.residual_m <= 0 or cfg.residual_mu < 0:
+        raise ValueError(f"--residual-m must be positive and --residual-mu >= 0, got {cfg.residual_m} and "
+                         f"{cfg.residual_mu}")
     if min(cfg.omega, cfg.lam) < 0 or not cfg.omega + cfg.lam > 0:
         raise ValueError(f"--omega and --lam must be >= 0 and not both 0, got {cfg.omega} and {cfg.lam}")
 
@@ -133,14 +139,15 @@ def _spec(cfg: StageConfig, pairs: Pairs) -> DepthSpec:
     if cfg.stage == 1:
         return spec
     first = load_config(stage_dirs(cfg.out, 1)[0], RESIDUAL_SCALE)
-    if (first["depth_spec"], first["residual_m"]) != (spec, cfg.residual_m):
+    code = (first["residual_m"], first.get("residual_mu", 0.0))
+    if (first["depth_spec"], code) != (spec, (cfg.residual_m, cfg.residual_mu)):
         raise ValueError(f"stage II must see stage I's frames and encoding: stage I read "
-                         f"{first['depth_spec']} with residual_m {first['residual_m']}; these are {spec} "
-                         f"with residual_m {cfg.residual_m}")
+                         f"{first['depth_spec']} with residual_m, mu {code}; these are {spec} "
+                         f"with {(cfg.residual_m, cfg.residual_mu)}")
     return spec
 
 
-def _stage2_arrays(cfg: StageConfig, pairs: Pairs, x0: np.ndarray, spec: DepthSpec
+def _stage2_arrays(cfg: StageConfig, pairs: Pairs, x0: np.ndarray, spec: DepthSpec, code: ResidualCode
                    ) -> tuple[tuple[np.ndarray, ...], dict]:
     """(x0, c ⊕ stage I's output, the eq.-6 weights) and what to record of them."""
     disc, p = load_discriminator(cfg.out)
@@ -148,4 +155,4 @@ def _stage2_arrays(cfg: StageConfig, pairs: Pairs, x0: np.ndarray, spec: DepthSp
     hit = caught(disc, pairs.sim, first, pairs.K, p)
     weights = loss_weights(hit, pairs.sim.shape[1:], p, cfg.omega, cfg.lam)
     record = {"discriminator_patch": p, "caught_share": round(float(hit.mean()), 4)}
-    return (x0, stage_condition(pairs.sim, spec, cfg.residual_m, first), weights), record
+    return (x0, stage_condition(pairs.sim, spec, code, first), weights), record
