@@ -318,3 +318,16 @@ def test_bench_times_the_residual_generator_in_each_setting(paired, model, tmp_p
     assert [(r["steps"], r["batch"], r["calls"]) for r in rows] == [(1, 2, 2), (2, 2, 2)]
     assert all(r["fps"] > 0 for r in rows)
     assert main(["bench", "--generator", "gan"]) == 2
+
+
+def test_the_shipped_model_has_both_stages_and_its_discriminator_and_generates_policy_frames():
+    from trainer.ddg.baselines import DEFAULT_RESIDUAL
+    from trainer.ddg.discriminator import load_discriminator
+
+    gen = ResidualGenerator(DEFAULT_RESIDUAL, steps=2, threads=1)
+    assert len(gen.stages) == 2 and (gen.spec.out_height, gen.spec.out_width) == (144, 192)
+    assert load_discriminator(DEFAULT_RESIDUAL)[1] == 16  # the patch stage II's loss was weighted by
+    sim = scene(np.random.default_rng(0), 144, 192)[None]
+    out = gen(sim, np.arange(1))
+    assert out.shape == sim.shape and out.dtype == np.uint16 and not out[sim == 0].any()
+    np.testing.assert_array_equal(gen(sim, np.arange(1)), out)

@@ -46,9 +46,10 @@ class StageConfig:
     """The residual's range (m): (sensor - sim) is clipped to +- this and scaled to [-1, 1]. 0.5 m covers the
     stereo sensor's errors to their 99th percentile (429 mm, docs/ddg.md); a smaller range spreads the small
     errors over more of [-1, 1]. Stage II takes stage I's."""
-    residual_mu: float = 255.0
-    """mu-law companding of the residual (``residual.ResidualCode``; 0 = linear): spreads the sensor's few-mm
-    errors over much of [-1, 1]. Stage II takes stage I's."""
+    residual_mu: float = 0.0
+    """mu-law companding of the residual (``residual.ResidualCode``; 0 = linear, the shipped model's): 255
+    spreads the sensor's few-mm errors over [-1, 1], less noise on flat regions but less of the sensor's error
+    at edges. Stage II takes stage I's."""
     far_m: float = 6.0
     """Far end (m) of the range the condition c sees (the D455 measures to ~6 m, and a stereo sensor's error
     grows with range: at the policy's 1.5 m the far floor is one flat value). Stage II takes stage I's."""
