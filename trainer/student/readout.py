@@ -144,7 +144,7 @@ def measure(ckpt_path: Path, store: Path, device: torch.device | str = "cpu",
     estimate, labels = readouts(ckpt_path, store, device, depth_source=depth_source)
     demos = DemoStore.open(store)
     return {"checkpoint": str(ckpt_path), "store": str(store), "depth_source": depth_source,
-            "sensor": demos.attrs.get("sensor") if depth_source == "sensor" else depth_source,
+            "sensor": {"sensor": demos.attrs.get("sensor"), "gt": "clean"}.get(depth_source, depth_source),
             **errors(estimate, labels, demos.episode_ends),
             "near_by_kind": by_kind(estimate, labels, demos.episode_ends, demos.kinds)}
 
