@@ -67,17 +67,22 @@ class VsSensorConfig:
     """Also write the report here (JSON); a grid of frames per source (PNG) is written beside it."""
 
 
-def wrong_depth_by_region(depth_mm: np.ndarray, clean_mm: np.ndarray, spec: DepthSpec) -> dict:
-    """Frames [N, H, W] against the clean frames of the same views, over the pixels whose clean depth lies in
-    the policy's range: per region (``edge``: near a depth edge of the clean frame, ``flat``: the rest) the
-    share of them without depth and the share of the measured ones more than each ``OFF_MM`` off (%)."""
-    if depth_mm.shape != clean_mm.shape:
-        raise ValueError(f"frames {depth_mm.shape} and clean frames {clean_mm.shape} differ in shape")
+def edge_regions(clean_mm: np.ndarray, spec: DepthSpec) -> dict[str, np.ndarray]:
+    """The judged pixels of clean frames [N, H, W], those whose clean depth lies in the policy's range, split
+    into ``edge`` (near a clean depth edge) and ``flat`` (the rest): made once for every source."""
     in_range = policy_range(clean_mm, spec) & (clean_mm > 0)
     near = np.stack([edge_band(c) for c in clean_mm])
+    return {"edge": in_range & near, "flat": in_range & ~near}
+
+
+def wrong_depth_by_region(depth_mm: np.ndarray, clean_mm: np.ndarray, regions: dict[str, np.ndarray]) -> dict:
+    """Frames [N, H, W] against the clean frames of the same views, per region of ``edge_regions``: the share
+    of its pixels without depth and the share of the measured ones more than each ``OFF_MM`` off (%)."""
+    if depth_mm.shape != clean_mm.shape:
+        raise ValueError(f"frames {depth_mm.shape} and clean frames {clean_mm.shape} differ in shape")
     off = np.abs(depth_mm.astype(np.int32) - clean_mm.astype(np.int32))
     out = {}
-    for region, mask in (("edge", in_range & near), ("flat", in_range & ~near)):
+    for region, mask in regions.items():
         kept = mask & (depth_mm > 0)
         out[f"{region}_holes_pct"] = _pct(1 - kept.sum() / max(mask.sum(), 1))
         for mm in OFF_MM:
@@ -101,12 +106,12 @@ def vs_sensor(cfg: VsSensorConfig) -> dict:
     sources = {"sensor": sensor[judged], **_sources(cfg, clean[judged], store.depth_spec)}
     enc = RandomEncoder()
     ref_feats, groups = features(sensor[ref], enc), episode[ref]
-    rows = {}
+    regions, rows = edge_regions(clean[judged], store.depth_spec), {}
     for name, frames in sources.items():
         feats = features(frames, enc)
         rows[name] = {"fid": fid(feats, ref_feats), "kid": kid(feats, ref_feats),
                       **bootstrap_ci(feats, episode[judged], ref_feats, groups, cfg.bootstrap, cfg.seed),
-                      **wrong_depth_by_region(frames, clean[judged], store.depth_spec),
+                      **wrong_depth_by_region(frames, clean[judged], regions),
                       **hole_agreement(frames, sensor[judged], clean[judged], store.depth_spec)}
     result = {"store": cfg.store, "frames": {"judged": int(judged.sum()), "reference": int(ref.sum())},
               "config": asdict(cfg), "sources": rows}
