@@ -14,7 +14,7 @@ import torch
 
 from hil_sim.objects import GROUPS
 from runtime.preprocess import FrameStack, normalise
-from trainer.dataset import DemoStore
+from trainer.dataset import DatasetError, DemoStore
 from trainer.sim.env import OBJECT_FROM_HAND, EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, HAND_PX, OBJECT_PX, OFFSET, SIZE, frame_labels
 from trainer.student import checkpoint
@@ -221,7 +221,7 @@ def test_a_round_under_a_sensor_shows_the_learner_its_frames_and_keeps_them_besi
 
 
 def test_a_fit_reads_the_sensors_frames_where_asked_and_refuses_a_store_without_them(tmp_path):
-    from trainer.student.steps import LabelledSteps, StepsError
+    from trainer.student.steps import LabelledSteps
 
     config = EnvConfig(objects=("cube",), max_steps=4)
     noisy_round = RoundSpec(horizon=0, sensor="randnoise")
@@ -234,7 +234,7 @@ def test_a_fit_reads_the_sensors_frames_where_asked_and_refuses_a_store_without_
                               chunks=False, depth_source=source)
         expected = normalise(noisy.episode(0)[array][2], 0.001, noisy.depth_spec)
         np.testing.assert_array_equal(steps.batch(torch.tensor([2])).depth[0, -1].numpy(), expected)
-    with pytest.raises(StepsError, match="depth_sensor"):
+    with pytest.raises(DatasetError, match="no data/depth_sensor"):
         LabelledSteps([tmp_path / "clean.zarr"], 1, 1, depth=True, chunks=False, depth_source="sensor")
 
 
