@@ -575,6 +575,24 @@ def test_readout_errors_name_an_empty_group_instead_of_failing():
     assert result["near"] == {"frames": 0} and result["all"]["offset_cm_median"] == pytest.approx(1.732, 1e-3)
 
 
+def test_the_gate_judges_every_frame_as_well_as_the_frames_near_the_object():
+    """A readout 0.5 cm off near the object passes the near target; 5 cm off on the far frames it fails the
+    every-frame one, and so the gate (the residual readout's case); one never near the object fails."""
+    from trainer.student.readout import errors, gate
+
+    labels = np.zeros((40, 12), np.float32)
+    labels[20:, 0] = 0.2  # half of each episode far from the object
+    estimate = labels.copy()
+    estimate[:, 1] += 0.005
+    ends = np.array([10, 20, 30, 40])  # two episodes near the object, two far
+    good = gate(errors(estimate, labels, ends))
+    assert good["passed"] and good["near"]["bias_cm_p90"] == pytest.approx(0.5, abs=1e-3)
+    estimate[20:, 1] += 0.05
+    far = gate(errors(estimate, labels, ends))
+    assert far["near"]["passed"] and not far["all"]["passed"] and not far["passed"]
+    assert not gate(errors(labels[20:] + 0.001, labels[20:], np.array([10, 20])))["passed"]
+
+
 def test_the_near_loss_weighs_an_error_by_how_near_the_object_is():
     """A 1 cm horizontal error costs 1 where the hand is on the object and 1/441 twenty centimetres away, so
     the fit cares most where the grasp is decided; the vertical error and the other facts do not enter."""
