@@ -61,6 +61,8 @@ class DepthSource:
     array: str
     made_by: str = ""
     """Empty: every store holds the array."""
+    labelled_by: str = ""
+    """The command that makes a labelled store (a DAgger round's) with the array, where it is another."""
 
 
 DEPTH_SOURCES = {
@@ -68,7 +70,8 @@ DEPTH_SOURCES = {
     "randnoise": DepthSource("data/depth"),  # procedural noise on the clean frames, at sampling time
     "ddg": DepthSource("data/depth_ddg", "python -m trainer ddg generate"),
     "ddg_nograft": DepthSource("data/depth_ddg_nograft", "python -m trainer ddg generate"),
-    "sensor": DepthSource("data/depth_sensor", "python -m trainer collect --sensor"),
+    "sensor": DepthSource("data/depth_sensor", "python -m trainer collect --sensor",
+                          "python -m trainer student readout --store S --episodes N --sensor"),
     "residual": DepthSource("data/depth_residual", "python -m trainer ddg generate --generator residual"),
 }
 """Depth source -> its stored array. sensor: what a simulated sensor showed at each step."""
@@ -311,9 +314,10 @@ class DemoStore:
             raise DatasetError(f"unknown depth source {source!r}; choose one of {sorted(DEPTH_SOURCES)}")
         array = DEPTH_SOURCES[source].array
         if array not in self.root:
-            held = ", ".join(self.depth_sources)
+            held, maker = ", ".join(self.depth_sources), DEPTH_SOURCES[source]
+            made_by = maker.labelled_by if maker.labelled_by and "data/labels" in self.root else maker.made_by
             raise DatasetError(f"{self.path} has no {array} for depth source {source!r} (make it with "
-                               f"`{DEPTH_SOURCES[source].made_by}`); it holds {held}")
+                               f"`{made_by}`); it holds {held}")
         generator = generator_of(source)
         if generator and _done(generator) in self.root:
             self._check_generated(generator, array, steps)

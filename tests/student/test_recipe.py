@@ -234,7 +234,7 @@ def test_a_fit_reads_the_sensors_frames_where_asked_and_refuses_a_store_without_
                               chunks=False, depth_source=source)
         expected = normalise(noisy.episode(0)[array][2], 0.001, noisy.depth_spec)
         np.testing.assert_array_equal(steps.batch(torch.tensor([2])).depth[0, -1].numpy(), expected)
-    with pytest.raises(DatasetError, match="no data/depth_sensor"):
+    with pytest.raises(DatasetError, match="no data/depth_sensor .* `python -m trainer student readout "):
         LabelledSteps([tmp_path / "clean.zarr"], 1, 1, depth=True, chunks=False, depth_source="sensor")
 
 
