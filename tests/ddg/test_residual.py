@@ -3,6 +3,7 @@ weights, sampling, the commands and their errors. Tiny models and a 4-episode ra
 every command runs with --threads 1 (torch's setting is process-wide: later tests inherit it)."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -174,6 +175,9 @@ def test_bad_inputs_are_one_line_errors(tmp_path, paired, model, capsys, tiny_mo
         ResidualGenerator(tmp_path / "x", steps=1)
     with pytest.raises(ValueError, match=r"\[N, 96, 128\] \(the model's resolution\)"):
         ResidualGenerator(model, steps=1)(np.zeros((1, 48, 64), np.uint16), np.arange(1))
+    finer = replace(ResidualGenerator(model, steps=1).spec, out_height=144, out_width=192)
+    with pytest.raises(ValueError, match="96x128 depth; frames at 144x192 need a residual model of their"):
+        ResidualGenerator(model, steps=1, frames=finer)
 
 
 def test_a_tiny_stage_one_overfits_a_constant_residual():

@@ -26,11 +26,24 @@ from trainer.dataset import GENERATORS, DemoStore
 from .baselines import DEFAULT_MODEL, DEFAULT_RESIDUAL
 from .model import model_id
 from .residual import ResidualGenerator, residual_model_id
-from .sample import Generator, check_frames
+from .sample import Generator
 
 LOCK_NAME = "ddg_generate.lock"
-SHIPPED = {"ddg": DEFAULT_MODEL, "residual": DEFAULT_RESIDUAL}
-"""Each generator's model when --model is not given."""
+
+
+@dataclass(frozen=True)
+class GeneratorKind:
+    """What differs between the generators: the model used when --model is not given, how a store's settings
+    name a model, and the class that runs one (both take the same settings and ``check_frames``)."""
+
+    shipped: Path
+    model_id: Callable[[str | Path], str]
+    make: Callable[..., Generator | ResidualGenerator]
+
+
+KINDS = {"ddg": GeneratorKind(DEFAULT_MODEL, model_id, Generator),
+         "residual": GeneratorKind(DEFAULT_RESIDUAL, residual_model_id, ResidualGenerator)}
+"""Each generator by name; the sources it makes are ``trainer.dataset.GENERATORS``'."""
 Generate = Callable[[np.ndarray, np.ndarray], dict[str, np.ndarray]]
 """(simulated frames, their indices in the store) -> each source the generator makes -> its frames."""
 
@@ -74,7 +87,7 @@ class GenerateConfig:
 
     @property
     def model_dir(self) -> str:
-        return self.model or str(SHIPPED[self.generator])
+        return self.model or str(KINDS[self.generator].shipped)
 
     def shard_pair(self) -> tuple[int, int]:
         try:
@@ -120,18 +133,17 @@ def generate(cfg: GenerateConfig) -> dict:
 
 def _generator(cfg: GenerateConfig, store: DemoStore) -> Generate:
     """``cfg``'s generator; it refuses the store's frames here, before any work."""
-    depth = store.root["data/depth"]
-    if cfg.generator == "residual":
-        residual = ResidualGenerator(cfg.model_dir, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads,
-                                     mode=cfg.mode, eta=cfg.eta)
-        check_frames(depth, residual.spec)
-        return lambda sim, indices: {"residual": residual(sim, indices)}
     # a store made by hand (tests) may carry no spec: its frames are then taken to be the model's
     store_spec = store.depth_spec if "depth_spec" in store.root.attrs else None
-    ddg = Generator(cfg.model_dir, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, mode=cfg.mode,
-                    eta=cfg.eta, frames=store_spec)
-    ddg.check_frames(depth)
-    return lambda sim, indices: dict(zip(GENERATORS["ddg"], ddg(sim, indices), strict=True))
+    gen = KINDS[cfg.generator].make(cfg.model_dir, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads,
+                                    mode=cfg.mode, eta=cfg.eta, frames=store_spec)
+    gen.check_frames(store.root["data/depth"])
+    made = GENERATORS[cfg.generator]
+
+    def generate(sim: np.ndarray, indices: np.ndarray) -> dict[str, np.ndarray]:
+        out = gen(sim, indices)
+        return dict(zip(made, out if isinstance(out, tuple) else (out,), strict=True))
+    return generate
 
 
 def _frames_of(store: DemoStore, episodes: int) -> int:
@@ -169,7 +181,7 @@ def _exclusive(path: str) -> Iterator[None]:
 def _outputs(store: DemoStore, cfg: GenerateConfig) -> tuple[dict[str, zarr.Array], zarr.Array]:
     """The store's outputs of ``cfg``'s generator for its settings; its depth made with others is refused, or
     dropped with ``--replace``."""
-    name = model_id(cfg.model_dir) if cfg.generator == "ddg" else residual_model_id(cfg.model_dir)
+    name = KINDS[cfg.generator].model_id(cfg.model_dir)
     settings = {"model": name, "steps": cfg.steps, "seed": cfg.seed,
                 "chunk": cfg.chunk, **({"eta": cfg.eta} if cfg.eta else {})}  # stores made before eta resume
     previous = store.generated_with(cfg.generator)

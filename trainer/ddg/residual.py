@@ -39,7 +39,7 @@ from tqdm import tqdm
 from runtime.preprocess import DepthSpec, normalise
 
 from .model import RESIDUAL_SCALE, ModelDirError, ddim_scheduler, load_config, model_id
-from .sample import OnnxEps, TorchEps, check_frames, ddim_reverse, frame_noise
+from .sample import FrameError, OnnxEps, TorchEps, check_frames, ddim_reverse, frame_noise
 
 TARGET_CHANNELS = 2
 """Residual and holes."""
@@ -143,16 +143,25 @@ class ResidualGenerator:
     frame's output does not depend on batching or sharding."""
 
     def __init__(self, model_dir: str | Path, steps: int = 10, seed: int = 0, threads: int = 2,
-                 backend: str = "onnx", mode: str = "split", eta: float = 0.0, stages: int = 0) -> None:
+                 backend: str = "onnx", mode: str = "split", eta: float = 0.0, stages: int = 0,
+                 frames: DepthSpec | None = None) -> None:
         self.stages = [Stage(d, steps, threads, backend, mode) for d in stage_dirs(model_dir, stages)]
         first = self.stages[0]
         self.spec, self.code, self.seed, self.eta = first.spec, first.code, seed, eta
         if any((s.spec, s.code) != (self.spec, self.code) for s in self.stages[1:]):
             raise ModelDirError(f"{model_dir}: stage2 was trained on another encoding (range or residual "
                                 "code) than stage1; retrain it")
+        # unlike the DDG's holes, a residual cannot be carried to another resolution: it is the depth itself
+        if frames and (frames.out_height, frames.out_width) != (self.spec.out_height, self.spec.out_width):
+            raise FrameError(f"{model_dir} makes {self.spec.out_height}x{self.spec.out_width} depth; frames "
+                             f"at {frames.out_height}x{frames.out_width} need a residual model of their own")
+
+    def check_frames(self, sim_mm: np.ndarray) -> None:
+        """Refuse frames not at the model's resolution, before any work."""
+        check_frames(sim_mm, self.spec)
 
     def __call__(self, sim_mm: np.ndarray, indices: np.ndarray) -> np.ndarray:
-        check_frames(sim_mm, self.spec)
+        self.check_frames(sim_mm)
         shape, out = (self.spec.out_height, self.spec.out_width), None
         for k, stage in enumerate(self.stages):
             seed = self.seed + k * STAGE_SEED

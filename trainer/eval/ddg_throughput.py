@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from trainer.ddg.generate import SHIPPED
+from trainer.ddg.generate import KINDS
 from trainer.ddg.residual import ResidualGenerator
 from trainer.ddg.sample import SESSION_MODES, Generator
 
@@ -51,13 +51,13 @@ class BenchConfig:
 
 
 def bench(cfg: BenchConfig) -> dict:
-    if cfg.generator not in SHIPPED:
-        raise ValueError(f"--generator {cfg.generator!r}: choose one of {sorted(SHIPPED)}")
+    if cfg.generator not in KINDS:
+        raise ValueError(f"--generator {cfg.generator!r}: choose one of {sorted(KINDS)}")
     frames = from_demos(cfg.demos, cfg.frames) if cfg.demos else rendered(cfg.frames)
     settings = list(itertools.product(cfg.modes, cfg.batches, cfg.steps))
-    make = ResidualGenerator if cfg.generator == "residual" else Generator
-    model = cfg.model or str(SHIPPED[cfg.generator])
-    gens = {s: make(model, steps=s[2], threads=cfg.threads, mode=s[0]) for s in settings}
+    kind = KINDS[cfg.generator]
+    model = cfg.model or str(kind.shipped)
+    gens = {s: kind.make(model, steps=s[2], threads=cfg.threads, mode=s[0]) for s in settings}
     samples: dict[tuple, list[tuple[float, float]]] = {s: [] for s in settings}
     for r in range(cfg.rounds):
         for s in settings:
