@@ -31,7 +31,8 @@ from tqdm import tqdm
 from .model import ModelDirError
 from .pairs import PARTS, Pairs, load_pairs
 from .point_patches import POINT_FEATURES, POINT_SCALE, patch_grid, point_patches, tile
-from .residual import ResidualGenerator, generate_frames, stage1_outputs, stage_dirs
+from .residual import ResidualGenerator, stage1_outputs, stage_dirs
+from .sample import generate_frames
 from .train import checkpoint, resume
 
 DISC_DIR = "discriminator"

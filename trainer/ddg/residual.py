@@ -34,12 +34,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from runtime.preprocess import DepthSpec, normalise
 
 from .model import RESIDUAL_SCALE, ModelDirError, ddim_scheduler, load_config, model_id
-from .sample import FrameError, OnnxEps, TorchEps, check_frames, ddim_reverse, frame_noise
+from .sample import FrameError, OnnxEps, TorchEps, check_frames, ddim_reverse, frame_noise, generate_frames
 
 TARGET_CHANNELS = 2
 """Residual and holes."""
@@ -171,15 +170,6 @@ class ResidualGenerator:
                               lambda j, s=seed: frame_noise(s, indices, shape, j, TARGET_CHANNELS))
             out = decode(sim_mm, x0, self.code)
         return out
-
-
-def generate_frames(gen: ResidualGenerator, sim_mm: np.ndarray, desc: str, batch: int = 16) -> np.ndarray:
-    """Every frame of ``sim_mm`` through ``gen``, ``batch`` at a time, frame i seeded by its index i."""
-    parts = []
-    for i in tqdm(range(0, len(sim_mm), batch), desc=desc, unit="batch"):
-        frames = sim_mm[i:i + batch]
-        parts.append(gen(frames, np.arange(i, i + len(frames))))
-    return np.concatenate(parts)
 
 
 def stage1_outputs(model_dir: str | Path, sim_mm: np.ndarray, steps: int, seed: int = 0, threads: int = 2,

@@ -16,6 +16,7 @@ from typing import Protocol
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from runtime.preprocess import DepthSpec, resample
 from trainer.dataset import sizes
@@ -157,3 +158,15 @@ class Generator:
             pred_mm = resample(pred_mm, *sim_mm.shape[1:])
         grafted = np.stack([graft(s, p, self.frames) for s, p in zip(sim_mm, pred_mm, strict=True)])
         return grafted, pred_mm
+
+
+def generate_frames(gen: Callable, sim_mm: np.ndarray, desc: str, batch: int = 16) -> np.ndarray | tuple:
+    """Every frame of ``sim_mm`` through a generator (``Generator``, ``ResidualGenerator``), ``batch`` at a
+    time, frame i seeded by its index i: its output frames, or each of its outputs' (the DDG's two)."""
+    parts = []
+    for i in tqdm(range(0, len(sim_mm), batch), desc=desc, unit="batch"):
+        frames = sim_mm[i:i + batch]
+        parts.append(gen(frames, np.arange(i, i + len(frames))))
+    if isinstance(parts[0], tuple):
+        return tuple(np.concatenate(output) for output in zip(*parts, strict=True))
+    return np.concatenate(parts)

@@ -32,8 +32,8 @@ from runtime.preprocess import DepthSpec
 from trainer.dataset import DatasetError, DemoStore
 from trainer.ddg.baselines import DEFAULT_MODEL, randnoise
 from trainer.ddg.model import load_config
-from trainer.ddg.residual import ResidualGenerator, generate_frames, stage_dirs
-from trainer.ddg.sample import Generator
+from trainer.ddg.residual import ResidualGenerator, stage_dirs
+from trainer.ddg.sample import Generator, generate_frames
 
 from .holes import edge_band
 from .judge import RandomEncoder, features, fid, kid
@@ -139,15 +139,12 @@ def _sources(cfg: VsSensorConfig, clean: np.ndarray, spec: DepthSpec) -> dict[st
     """Each source's frames of the clean ones (frame i's generator noise seeded by i)."""
     rng = np.random.default_rng(cfg.seed)
     out = {"gt": clean, "randnoise": np.stack([randnoise(d, rng) for d in clean])}
-    index = np.arange(len(clean))
     for model in cfg.ddg:
         own = load_config(model)["depth_spec"]  # raw mm frames: the model reads them over its own range
         frames = replace(spec, near_m=own.near_m, far_m=own.far_m)
         gen = Generator(model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, frames=frames)
-        parts = [gen(clean[i:i + 16], index[i:i + 16]) for i in range(0, len(clean), 16)]
         name = Path(model).name
-        out[f"{name} grafted"] = np.concatenate([p[0] for p in parts])
-        out[f"{name} ungrafted"] = np.concatenate([p[1] for p in parts])
+        out[f"{name} grafted"], out[f"{name} ungrafted"] = generate_frames(gen, clean, name)
     for model in cfg.residual:
         name, stages = Path(model).name, len(stage_dirs(model))
         for k in range(1, stages + 1):
