@@ -1,11 +1,13 @@
 """Policy latency under deploy-like load, per onnxruntime setting (not a test; run by hand).
 
-    nice -n 10 python -m tests.runtime.bench_policy --model student.onnx --out runs/runtime/bench.json
+    nice -n 10 python -m tests.runtime.bench_policy --model student.onnx [other.onnx ...] \
+        --out runs/runtime/bench.json
 
 Load while timing: a camera process publishing 848x480 depth at 30 Hz and a driver process publishing robot
 state at 200 Hz, both over ZeroMQ loopback, and in this process a thread doing the runtime's receive work
-(newest-frame drain, decode, preprocess, state drain). Settings are interleaved call by call (in a fresh
-random order each round) so a change in the machine's other load hits all of them alike.
+(newest-frame drain, decode, preprocess, state drain). Settings (and models, where several are given) are
+interleaved call by call (in a fresh random order each round) so a change in the machine's other load hits all
+of them alike; each model after the first is reported as its per-round time ratio to the first's.
 """
 
 from __future__ import annotations
@@ -82,7 +84,7 @@ def _time(policy: Policy) -> tuple[float, float]:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--model", required=True)
+    p.add_argument("--model", required=True, nargs="+", help="policy files, timed side by side")
     p.add_argument("--rounds", type=int, default=100, help="timed calls per setting")
     p.add_argument("--out", type=Path)
     args = p.parse_args(argv)
@@ -93,43 +95,49 @@ def main(argv: list[str] | None = None) -> int:
              for f, a in ((_camera, cam_addr), (_driver, robot_addr))]
     for proc in procs:
         proc.start()
-    policies = {c: Policy(args.model, c) for c in CONFIGS}
+    # by position, not path: a model given twice is an A/A run
+    keys = [(i, c) for i in range(len(args.model)) for c in CONFIGS]
+    policies = {(i, c): Policy(args.model[i], c) for i, c in keys}
     spec = next(iter(policies.values())).metadata.preprocess
     stop, counts = threading.Event(), {"frames": 0, "states": 0}
     links = (HilCamera(spec, cam_addr), RobotLink(robot_addr))
     receiver = threading.Thread(target=_receiver, args=(*links, spec, stop, counts), daemon=True)
     receiver.start()
-    results = {c: {"s": [], "cpu": []} for c in CONFIGS}
+    results = {k: {"s": [], "cpu": []} for k in keys}
     started = time.monotonic()
     for policy in policies.values():
         policy.warmup(3)
     for _ in tqdm(range(args.rounds), desc="rounds"):
-        for config in random.sample(CONFIGS, len(CONFIGS)):
-            wall, cpu = _time(policies[config])
-            results[config]["s"].append(wall)
-            results[config]["cpu"].append(cpu)
+        for key in random.sample(keys, len(keys)):
+            wall, cpu = _time(policies[key])
+            results[key]["s"].append(wall)
+            results[key]["cpu"].append(cpu)
     elapsed = time.monotonic() - started
     stop.set()
     stop_procs.set()
-    report = {"model": str(args.model), "ddim_steps": policies[CONFIGS[0]].metadata.ddim_steps,
-              "frames_per_s": counts["frames"] / elapsed, "states_per_s": counts["states"] / elapsed,
-              "settings": [_row(c, r) for c, r in results.items()]}
+    report = {"models": args.model, "frames_per_s": counts["frames"] / elapsed,
+              "states_per_s": counts["states"] / elapsed,
+              "settings": [{"model": args.model[i], "ddim_steps": policies[i, c].metadata.ddim_steps,
+                            **_row(c, results[i, c], results[0, c])} for i, c in keys]}
     print(f"receiver: {report['frames_per_s']:.1f} frames/s, {report['states_per_s']:.0f} states/s")
-    print("| intra-op threads | spinning | median ms | p90 ms | p99 ms | CPU ms/call |")
-    print("| --- | --- | --- | --- | --- | --- |")
+    print("| model | intra-op threads | spinning | median ms | p90 ms | p99 ms | CPU ms/call | x the first |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for row in report["settings"]:
-        print(f"| {row['threads']} | {'on' if row['spinning'] else 'off'} | {row['median_ms']:.2f} | "
-              f"{row['p90_ms']:.2f} | {row['p99_ms']:.2f} | {row['cpu_ms_per_call']:.2f} |")
+        print(f"| {Path(row['model']).name} | {row['threads']} | {'on' if row['spinning'] else 'off'} | "
+              f"{row['median_ms']:.2f} | {row['p90_ms']:.2f} | {row['p99_ms']:.2f} | "
+              f"{row['cpu_ms_per_call']:.2f} | {row['ratio_to_first_median']:.2f} |")
     if args.out:
         args.out.write_text(json.dumps(report, indent=2))
     return 0
 
 
-def _row(config: SessionConfig, r: dict) -> dict:
+def _row(config: SessionConfig, r: dict, first: dict) -> dict:
+    """One (model, setting)'s times; its ratio to the first model's, round by round (under the same load)."""
     ms = np.array(r["s"]) * 1e3
     return {"threads": config.intra_op_threads, "spinning": config.allow_spinning, "calls": len(ms),
             "median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
-            "p99_ms": float(np.percentile(ms, 99)), "cpu_ms_per_call": float(np.median(r["cpu"]) * 1e3)}
+            "p99_ms": float(np.percentile(ms, 99)), "cpu_ms_per_call": float(np.median(r["cpu"]) * 1e3),
+            "ratio_to_first_median": float(np.median(np.array(r["s"]) / np.array(first["s"])))}
 
 
 if __name__ == "__main__":
