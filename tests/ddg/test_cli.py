@@ -87,6 +87,34 @@ def test_metrics_cli_end_to_end(tmp_path, tiny_demos, tiny_model):
     assert "inpaint" not in json.loads(out.read_text())["sources"]  # no holes on either side to judge
 
 
+
+def test_metrics_judge_one_source_against_the_others_and_count_what_the_model_saw(tmp_path, tiny_demos,
+                                                                                  tiny_model, capsys):
+    """--source: the reference is that source's D4xx frames, real_train the other sources'; the JSON counts
+    the reference frames the model trained on (its config's frames); an unknown source is named."""
+    import json
+    import shutil
+
+    (tmp_path / "real").mkdir()
+    real = _real_dir(tmp_path / "real")
+    model = tmp_path / "model"
+    shutil.copytree(tiny_model, model)
+    config = json.loads((model / "config.json").read_text())
+    (model / "config.json").write_text(json.dumps({**config, "frames": ["f0", "f1"]}))
+    out = tmp_path / "m" / "metrics.json"
+    args = ["metrics", "--real", str(real), "--json", str(out), "--model", str(model), "--demos",
+            str(tiny_demos), "--crops", "4", "--sim-frames", "12", "--steps", "2", "--bootstrap", "0",
+            "--threads", "1"]
+    assert main([*args, "--source", "f2"]) == 0
+    res = json.loads(out.read_text())
+    assert res["reference"]["real_frames"] == 1 and res["reference"]["frames_the_model_trained_on"] == 0
+    assert res["sources"]["real_train"]["frames"] == 12  # crops of f0 and f1, the other D4xx source
+    assert main([*args, "--source", "f0"]) == 0
+    assert json.loads(out.read_text())["reference"]["frames_the_model_trained_on"] == 1
+    assert main([*args, "--source", "f3"]) == 2  # f3 is the Kinect's
+    assert "--source f3: no D4xx frames of it; the D4xx sources are f0, f1, f2" in capsys.readouterr().err
+
+
 def test_fit_help_shows_field_docs():
     cmd = [sys.executable, "-m", "trainer", "ddg", "fit", "--help"]
     r = subprocess.run(cmd, capture_output=True, text=True, check=True)

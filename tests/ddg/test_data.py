@@ -11,6 +11,7 @@ from trainer.ddg.data import (
     load_real_dir,
     metres_to_mm,
     policy_crop,
+    source_of,
     split,
 )
 
@@ -103,6 +104,20 @@ def test_policy_crop_of_a_d455_frame_is_the_runtime_crop():
 
     raw = np.random.default_rng(0).integers(0, 3000, (480, 848)).astype(np.uint16)
     assert np.array_equal(policy_crop(raw)[0], crop_resize(raw, DepthSpec()))
+
+
+def test_a_source_left_out_is_held_out_whole_and_an_unknown_one_is_named():
+    """Leave-one-source-out: every frame of the source leaves training (the usual held-out frames too)."""
+    frames = load_real_dir(SHARED)
+    train, held = split(frames, leave_out="ucn_demo")
+    assert {source_of(f.name) for f in frames} == {"anygrasp_tracking", "ucn_demo", "cleargrasp_d435",
+                                                   "d3roma_d415"}
+    assert not [f for f in train if source_of(f.name) == "ucn_demo"]
+    ucn = {f.name for f in frames if f.name.startswith("ucn_demo")}
+    assert {f.name for f in held} == set(HOLDOUT_FRAMES) | ucn
+    assert len(train) + len(held) == len(frames) == 44
+    with pytest.raises(RealDataError, match="no frames of source 'kinect' to leave out; the sources are any"):
+        split(frames, leave_out="kinect")
 
 
 def test_shared_data_split_keeps_holdout_out_of_training():

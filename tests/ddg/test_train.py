@@ -101,6 +101,10 @@ def test_banks_of_two_depth_ranges_are_not_mixed(tmp_path):
     with pytest.raises(ValueError, match="far_m 6.0"):
         fit(FitConfig(steps=1, bank=(str(tmp_path / "wide.npz"),), run=str(tmp_path / "r"),
                       out=str(tmp_path / "m"), batch=2, patch=(32, 32), channels=(8, 8, 16), threads=1))
+    with pytest.raises(ValueError, match="--leave-out picks frames of --real"):
+        fit(FitConfig(steps=1, bank=(str(tmp_path / "wide.npz"),), leave_out="ucn_demo",
+                      run=str(tmp_path / "r"), out=str(tmp_path / "m"), batch=2, patch=(32, 32),
+                      channels=(8, 8, 16), threads=1))
 
 
 def test_an_exact_prior_leaves_what_the_sensor_gets_wrong_to_the_target(tmp_path):

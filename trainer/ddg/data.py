@@ -88,10 +88,19 @@ def load_real_dir(path: str | Path, sensors: str = "d4xx") -> list[RealFrame]:
     return picked
 
 
-def split(frames: list[RealFrame], holdout: tuple[str, ...] = HOLDOUT_FRAMES
+def source_of(name: str) -> str:
+    """The capture source a frame's name starts with (``anygrasp_tracking__seq00__024`` ->
+    ``anygrasp_tracking``): one camera, lab and kind of scene."""
+    return name.split("__")[0]
+
+
+def split(frames: list[RealFrame], holdout: tuple[str, ...] = HOLDOUT_FRAMES, leave_out: str = ""
           ) -> tuple[list[RealFrame], list[RealFrame]]:
-    """(train, held-out) by frame name."""
-    held = set(holdout)
+    """(train, held-out) by frame name; ``leave_out``: every frame of that source is held out as well."""
+    if leave_out and leave_out not in (sources := sorted({source_of(f.name) for f in frames})):
+        raise RealDataError(f"no frames of source {leave_out!r} to leave out; the sources are "
+                            f"{', '.join(sources)}")
+    held = {f.name for f in frames if f.name in holdout or source_of(f.name) == leave_out}
     return [f for f in frames if f.name not in held], [f for f in frames if f.name in held]
 
 

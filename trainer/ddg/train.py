@@ -61,6 +61,9 @@ class FitConfig:
     """Prebuilt crop bank(s) .npz to train on (concatenated) instead of building one from --real."""
     sensors: str = "d4xx"
     """Which real frames to learn from: d4xx (RealSense D4xx only) or all (every active sensor)."""
+    leave_out: str = ""
+    """A capture source to train without (the name before '__', e.g. anygrasp_tracking), for ``ddg metrics
+    --source`` to judge the generator on captures it never saw."""
     crops: int = 48
     """Random crops per real frame in the bank."""
     steps: int = 6000
@@ -213,16 +216,19 @@ def plot_losses(losses: list[float], path: Path, title: str = "DDG training loss
 
 
 def _bank(cfg: FitConfig, run: Path) -> tuple[dict[str, np.ndarray], list[str]]:
+    if cfg.bank and cfg.leave_out:
+        raise ValueError("--leave-out picks frames of --real; a prebuilt --bank holds its crops already")
     if cfg.bank:
         bank = concat_banks([load_bank(Path(b)) for b in cfg.bank])
     else:
         far = "" if cfg.far_m == POLICY_SPEC.far_m else f"_far{cfg.far_m:g}"
         prior = "" if cfg.prior == "fused" else f"_{cfg.prior}"
-        cached = run / f"bank_{cfg.sensors}_{cfg.crops}_{cfg.seed}{far}{prior}.npz"
+        without = f"_without_{cfg.leave_out}" if cfg.leave_out else ""
+        cached = run / f"bank_{cfg.sensors}_{cfg.crops}_{cfg.seed}{far}{prior}{without}.npz"
         if cached.exists():
             bank = load_bank(cached)
         else:
-            train, _ = split(load_real_dir(cfg.real, cfg.sensors))
+            train, _ = split(load_real_dir(cfg.real, cfg.sensors), leave_out=cfg.leave_out)
             bank = build_bank(train, BankConfig(crops=cfg.crops, seed=cfg.seed, far_m=cfg.far_m,
                                                 prior=cfg.prior))
             save_bank(bank, cached)

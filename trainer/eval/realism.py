@@ -21,7 +21,15 @@ import numpy as np
 import torch
 
 from trainer.ddg.baselines import DEFAULT_MODEL, inpaint, randnoise
-from trainer.ddg.data import POLICY_SPEC, RealDataError, load_real_dir, policy_crop, split
+from trainer.ddg.data import (
+    POLICY_SPEC,
+    RealDataError,
+    RealFrame,
+    load_real_dir,
+    policy_crop,
+    source_of,
+    split,
+)
 
 from .holes import hole_stats
 from .judge import JUDGE_CHANNELS, RandomEncoder, features, fid, kid
@@ -41,6 +49,11 @@ class MetricsConfig:
     """Demo store to take simulated frames from (default: render randomised hil_sim.world scenes)."""
     subset: str = "holdout"
     """Reference frames: holdout (the held-out D4xx frames) or all (every D4xx frame in --real)."""
+    source: str = ""
+    """Instead of --subset, every D4xx frame of this capture source (the name before '__', e.g.
+    anygrasp_tracking), the other sources' as ``real_train``: judged with a DDG fitted ``--leave-out`` that
+    source, how the generator does on captures from elsewhere (the JSON counts the reference frames the model
+    trained on: 0 for a left-out source)."""
     crops: int = 16
     """Random crops per real frame."""
     sim_frames: int = 192
@@ -87,7 +100,8 @@ def run_metrics(cfg: MetricsConfig) -> dict:
     judged_against = {"inpaint": np.stack([inpaint(d, rng) for d in ref])}
     enc = RandomEncoder()
     ref_feats = features(ref, enc, cfg.judge)
-    result = {"reference": {"frames": len(ref), "real_frames": len(np.unique(ref_groups)), **hole_stats(ref)},
+    result = {"reference": {"frames": len(ref), "real_frames": len(np.unique(ref_groups)), **hole_stats(ref),
+                            **_seen_by_model(cfg)},
               "sources": {}, "config": asdict(cfg)}
     feats = {}
     for name, (fr, groups) in frames.items():
@@ -184,15 +198,40 @@ def _real_sets(cfg: MetricsConfig, rng: np.random.Generator) -> tuple[Crops, dic
     d4xx = [f for f in every if f.sensor == "d4xx"]
     if not d4xx:
         raise RealDataError(f"{cfg.real}: no RealSense D4xx frames to use as the reference")
-    train, held = split(d4xx)
-    if cfg.subset == "holdout" and not held:
-        raise RealDataError(f"{cfg.real}: none of the held-out frames is there; use --subset all")
-    reference = held if cfg.subset == "holdout" else d4xx
-    extra = {"real_train": train if cfg.subset == "holdout" else [],
-             "real_other_sensors": [f for f in every if f.sensor != "d4xx"]}
+    if cfg.source:
+        train, reference = _by_source(d4xx, cfg.source)
+    else:
+        train, held = split(d4xx)
+        if cfg.subset == "holdout" and not held:
+            raise RealDataError(f"{cfg.real}: none of the held-out frames is there; use --subset all")
+        reference, train = (held, train) if cfg.subset == "holdout" else (d4xx, [])
+    extra = {"real_train": train, "real_other_sensors": [f for f in every if f.sensor != "d4xx"]}
     crops = {name: _crops(fs, rng.integers(0, len(fs), cfg.sim_frames), rng)
              for name, fs in extra.items() if fs}
     return _crops(reference, np.repeat(np.arange(len(reference)), cfg.crops), rng), crops
+
+
+def _by_source(d4xx: list[RealFrame], source: str) -> tuple[list[RealFrame], list[RealFrame]]:
+    """(the other sources' D4xx frames, ``source``'s)."""
+    theirs = [f for f in d4xx if source_of(f.name) == source]
+    if not theirs:
+        known = sorted({source_of(f.name) for f in d4xx})
+        raise RealDataError(f"--source {source}: no D4xx frames of it; the D4xx sources are "
+                            f"{', '.join(known)}")
+    return [f for f in d4xx if source_of(f.name) != source], theirs
+
+
+def _seen_by_model(cfg: MetricsConfig) -> dict:
+    """With --source: how many of its frames the DDG trained on (its config's ``frames``; a model that lists
+    none is not counted)."""
+    if not (cfg.source and cfg.model):
+        return {}
+    from trainer.ddg.model import load_config
+
+    trained = load_config(cfg.model).get("frames")
+    if trained is None:
+        return {}
+    return {"frames_the_model_trained_on": sum(source_of(name) == cfg.source for name in trained)}
 
 
 def _crops(frames, which: np.ndarray, rng: np.random.Generator) -> Crops:
