@@ -243,9 +243,8 @@ def _crops(frames, which: np.ndarray, rng: np.random.Generator) -> Crops:
 def _ddg_sources(cfg: MetricsConfig, sim: np.ndarray) -> dict[str, np.ndarray]:
     if not cfg.model:
         return {}
-    from trainer.ddg.sample import Generator
+    from trainer.ddg.sample import Generator, generate_frames
 
     gen = Generator(cfg.model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, eta=cfg.eta)
-    parts = [gen(sim[i:i + 64], np.arange(i, min(len(sim), i + 64))) for i in range(0, len(sim), 64)]
-    return {"ddg_nograft": np.concatenate([p[1] for p in parts]),
-            "ddg": np.concatenate([p[0] for p in parts])}
+    grafted, ungrafted = generate_frames(gen, sim, "ddg", batch=64)
+    return {"ddg_nograft": ungrafted, "ddg": grafted}
