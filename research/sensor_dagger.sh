@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # DAgger rounds for the depth readout under one depth source (issue 45, docs/table2.md), from nothing or resumed.
 #
-#   research/sensor_dagger.sh [ROUNDS]        # env: SENSOR (stereo), NAME (ceiling), CELLS ("2 3": rounds to judge)
+#   research/sensor_dagger.sh [ROUNDS]   # env: SENSOR (stereo), NAME (ceiling), CELLS ("2 3": rounds to judge),
+#                                        #      WORKERS (2: simulation processes; 15 on a lent 16-core machine)
 #
 # Round 0: the expert drives 80 episodes under $SENSOR on the training kinds; the shipped file's first readout is
 # refitted 400 steps on those frames. Round r >= 1: the composed learner of round r-1 drives 150 episodes under
@@ -18,6 +19,7 @@ ROUNDS=${1:-3}
 SENSOR=${SENSOR:-stereo}
 NAME=${NAME:-ceiling}
 CELLS=${CELLS:-"2 3"}
+WORKERS=${WORKERS:-2}
 R=${DDG_CACHE:-$HOME/.cache/diffudepgrasp}
 K=$R/recovered/shipped
 D=$R/table2/$NAME
@@ -39,7 +41,7 @@ collect() {
     rm -rf "$store"
     log "collect $store ($episodes episodes${learner:+, learner $learner beta $beta})"
     python -m trainer student readout "$K/student.pt" --store "$store" --episodes "$episodes" --no-chunks \
-        --sensor "$SENSOR" --objects "$TRAIN_KINDS" --seed "$seed" --workers 2 --collect-only \
+        --sensor "$SENSOR" --objects "$TRAIN_KINDS" --seed "$seed" --workers "$WORKERS" --collect-only \
         ${learner:+--learner student:$learner --beta $beta}
     touch "$store.done"
 }
@@ -63,7 +65,7 @@ cell() {
     [[ -f $json ]] && return
     log "cell round $1"
     python -m trainer evaluate --policy "student:$D/c$1/student.onnx" --sensor stereo --objects seen \
-        --episodes 180 --workers 2 --json "$json.part"
+        --episodes 180 --workers "$WORKERS" --json "$json.part"
     mv "$json.part" "$json"
 }
 
