@@ -13,15 +13,12 @@ OpenCV's (x right, y down, z forward) for the extrinsics written to datasets.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-import mujoco  # noqa: E402  (MUJOCO_GL must be set before the import)
-
-from runtime.preprocess import DepthSpec  # noqa: E402
+from runtime.preprocess import DepthSpec
 
 _MJ_TO_CV = np.diag([1.0, -1.0, -1.0])
 _PIXEL_M = 1e-5

@@ -24,25 +24,22 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
-import os
 import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import mujoco
 import numpy as np
 import zmq
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-import mujoco  # noqa: E402  (MUJOCO_GL must be set before the import)
-
-from hil_sim.camera import to_millimetres  # noqa: E402
-from hil_sim.driver_backend import MujocoBackend  # noqa: E402
-from hil_sim.world import CAMERA, World  # noqa: E402
-from runtime.franka_driver.server import DriverConfig, DriverServer  # noqa: E402
-from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT, Encoder  # noqa: E402
-from runtime.transport import TransportError, bind  # noqa: E402
+from hil_sim.camera import to_millimetres
+from hil_sim.driver_backend import MujocoBackend
+from hil_sim.world import CAMERA, World
+from runtime.franka_driver.server import DriverConfig, DriverServer
+from runtime.protocol import DEFAULT_CAMERA, DEFAULT_ROBOT, Encoder
+from runtime.transport import TransportError, bind
 
 DEPTH_SCALE = 0.001  # uint16 millimetres, as a D455 reports with its default depth units
 SENSORS = ("clean", "stereo")
@@ -184,7 +181,6 @@ class CameraPublisher:
 
 
 def _camera_main(config: SimConfig, qpos, published, render, pause_until, drop, stop, ready) -> None:
-    os.environ.setdefault("MUJOCO_GL", "egl")
     world = World([config.object_kind])
     world.reset(config.object_kind, config.seed, randomise=False)
     depth, close = _depth_source(config, world)

@@ -13,19 +13,16 @@ Objects start at random in a 40 cm (y) x 30 cm (x) workspace centred 50 cm in fr
 from __future__ import annotations
 
 import copy
-import os
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import mujoco
 import numpy as np
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-import mujoco  # noqa: E402
-
-from hil_sim import objects  # noqa: E402
-from hil_sim.camera import DepthCamera, Intrinsics, d455_intrinsics, extrinsics, look_at_quat  # noqa: E402
-from runtime.preprocess import DepthSpec, policy_state  # noqa: E402
+from hil_sim import objects
+from hil_sim.camera import DepthCamera, Intrinsics, d455_intrinsics, extrinsics, look_at_quat
+from runtime.preprocess import DepthSpec, policy_state
 
 TABLE_Z = 0.75
 WORKSPACE_X = (0.35, 0.65)

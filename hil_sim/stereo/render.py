@@ -9,15 +9,12 @@ x and sets its frustum from its own intrinsics. Segmentation and depth come out 
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-import mujoco  # noqa: E402  (MUJOCO_GL must be set before the import)
-
-from hil_sim.camera import Intrinsics  # noqa: E402
+from hil_sim.camera import Intrinsics
 
 
 @dataclass(frozen=True)

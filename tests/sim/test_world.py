@@ -113,3 +113,18 @@ def test_bad_commands_are_rejected(world: World) -> None:
         world.set_targets(np.zeros(6), 1.0)
     with pytest.raises(WorldError, match="7 finite"):
         world.set_targets(np.full(7, np.nan), 1.0)
+
+
+def test_the_world_renders_headless_whichever_module_imports_mujoco_first() -> None:
+    """With no MUJOCO_GL set, a trainer module that imports mujoco before any hil_sim one (the scripted
+    expert) still leaves MuJoCo on headless EGL: before, it fell to GLFW and the first render failed on a
+    server (`trainer evaluate --sensor stereo --workers 1`)."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import trainer.teacher.scripted\nfrom hil_sim.world import World\n"
+            "w = World(['cube']); w.reset('cube', 0); print(w.render_policy_depth().shape)")
+    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "(96, 128)", done.stderr[-500:]
