@@ -140,10 +140,10 @@ def _generator(cfg: GenerateConfig, store: DemoStore) -> Generate:
     gen.check_frames(store.root["data/depth"])
     made = GENERATORS[cfg.generator]
 
-    def generate(sim: np.ndarray, indices: np.ndarray) -> dict[str, np.ndarray]:
-        out = gen(sim, indices)
+    def by_source(sim: np.ndarray, indices: np.ndarray) -> dict[str, np.ndarray]:
+        out = gen(sim, indices)  # the DDG's two outputs, or the residual diffusion's one
         return dict(zip(made, out if isinstance(out, tuple) else (out,), strict=True))
-    return generate
+    return by_source
 
 
 def _frames_of(store: DemoStore, episodes: int) -> int:
