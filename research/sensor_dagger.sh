@@ -12,15 +12,16 @@
 # stereo. Under SENSOR=stereo this is the ceiling of a source faithful to the test sensor (not a row of the table);
 # any other source (ddg:..., residual) is a row.
 #
-# Every stage leaves its output under $DDG_CACHE (default ~/.cache/diffudepgrasp)/table2/$NAME and is skipped when
-# that output is there: a killed run resumes where it stopped (a half-collected store is collected again).
+# Every stage leaves its output under $DIFFUDEPGRASP_HOME/table2/$NAME (the project's home for long-lived artifacts,
+# default ~/.cache/diffudepgrasp, as trainer.student.recipe.default_home) and is skipped when that output is there:
+# a killed run resumes where it stopped (a half-collected store is collected again).
 set -euo pipefail
 ROUNDS=${1:-3}
 SENSOR=${SENSOR:-stereo}
 NAME=${NAME:-ceiling}
 CELLS=${CELLS:-"2 3"}
 WORKERS=${WORKERS:-2}
-R=${DDG_CACHE:-$HOME/.cache/diffudepgrasp}
+R=${DIFFUDEPGRASP_HOME:-$HOME/.cache/diffudepgrasp}
 K=$R/recovered/shipped
 D=$R/table2/$NAME
 TRAIN_KINDS=seen,squares,shapes
