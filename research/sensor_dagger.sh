@@ -6,8 +6,9 @@
 #
 # Round 0: the expert drives 80 episodes under $SENSOR on the training kinds; the shipped file's first readout is
 # refitted 400 steps on those frames. Round r >= 1: the composed learner of round r-1 drives 150 episodes under
-# $SENSOR (DAgger's beta 0.5^r: the expert's share shrinks as the learner improves) and the first readout is refitted
-# from the shipped weights on every round so far (800 steps for one learner round, 1200 for more). Each readout is
+# $SENSOR (DAgger's beta 0.5^r: the expert's share shrinks as the learner improves) and round r-1's readout is
+# refitted 400 more steps on every round so far (warm-started: a fresh refit from the shipped weights took 800 steps
+# for one learner round and 1200 for more, and a step takes ~5 s on a CPU without bf16). Each readout is
 # composed with the shipped head (M0) and exported; the rounds in $CELLS get a 180-episode seen-kind cell under
 # stereo. Under SENSOR=stereo this is the ceiling of a source faithful to the test sensor (not a row of the table);
 # any other source (ddg:..., residual) is a row.
@@ -47,13 +48,13 @@ collect() {
     touch "$store.done"
 }
 
-# fit ROUND STEPS STORES...: the first readout refitted from the shipped weights, composed with M0, exported.
+# fit ROUND INIT STORES...: INIT's first readout refitted 400 steps, composed with M0, exported.
 fit() {
-    local round=$1 steps=$2; shift 2
+    local round=$1 init=$2 steps=400; shift 2
     local out=$D/fit$round onnx=$D/c$round/student.onnx
     [[ -f $onnx ]] && return
     log "fit round $round ($steps steps on $*)"
-    python -m trainer student refit --init "$K/student.pt" --stores "$@" --depth-source sensor --perception-only \
+    python -m trainer student refit --init "$init" --stores "$@" --depth-source sensor --perception-only \
         --shares seen=0.45 squares=0.2 --steps "$steps" --batch 128 --lr 3e-4 --shift-px 6 --near-loss 1 \
         --precision $PRECISION --threads 2 --out "$out"
     python -m trainer student compose --perception "$out/ckpt.pt" --head "$K/head.pt" --out "$D/c$round/student.pt"
@@ -73,12 +74,12 @@ cell() {
 recover_shipped
 collect "$D/round0.zarr" 80 50000
 stores=("$D/round0.zarr")
-fit 0 400 "${stores[@]}"
+fit 0 "$K/student.pt" "${stores[@]}"
 for ((r = 1; r <= ROUNDS; r++)); do
     beta=$(python -c "print(0.5 ** $r)")
     collect "$D/round$r.zarr" 150 $((52000 + 1000 * (r - 1))) "$D/c$((r - 1))/student.onnx" "$beta"
     stores+=("$D/round$r.zarr")
-    fit "$r" $((r == 1 ? 800 : 1200)) "${stores[@]}"
+    fit "$r" "$D/fit$((r - 1))/ckpt.pt" "${stores[@]}"
     [[ " $CELLS " == *" $r "* ]] && cell "$r"
 done
 log "done: $D"
