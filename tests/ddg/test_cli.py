@@ -112,7 +112,7 @@ def test_metrics_judge_one_source_against_the_others_and_count_what_the_model_sa
     assert main([*args, "--source", "f0"]) == 0
     assert json.loads(out.read_text())["reference"]["frames_the_model_trained_on"] == 1
     assert main([*args, "--source", "f3"]) == 2  # f3 is the Kinect's
-    assert "--source f3: no D4xx frames of it; the D4xx sources are f0, f1, f2" in capsys.readouterr().err
+    assert "no frames of source 'f3'; the sources are f0, f1, f2" in capsys.readouterr().err
 
 
 def test_fit_help_shows_field_docs():

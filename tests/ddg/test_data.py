@@ -116,7 +116,7 @@ def test_a_source_left_out_is_held_out_whole_and_an_unknown_one_is_named():
     ucn = {f.name for f in frames if f.name.startswith("ucn_demo")}
     assert {f.name for f in held} == set(HOLDOUT_FRAMES) | ucn
     assert len(train) + len(held) == len(frames) == 44
-    with pytest.raises(RealDataError, match="no frames of source 'kinect' to leave out; the sources are any"):
+    with pytest.raises(RealDataError, match="no frames of source 'kinect'; the sources are any"):
         split(frames, leave_out="kinect")
 
 

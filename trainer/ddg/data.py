@@ -98,7 +98,7 @@ def split(frames: list[RealFrame], holdout: tuple[str, ...] = HOLDOUT_FRAMES, le
           ) -> tuple[list[RealFrame], list[RealFrame]]:
     """(train, held-out) by frame name; ``leave_out``: every frame of that source is held out as well."""
     if leave_out and leave_out not in (sources := sorted({source_of(f.name) for f in frames})):
-        raise RealDataError(f"no frames of source {leave_out!r} to leave out; the sources are "
+        raise RealDataError(f"no frames of source {leave_out!r}; the sources are "
                             f"{', '.join(sources)}")
     held = {f.name for f in frames if f.name in holdout or source_of(f.name) == leave_out}
     return [f for f in frames if f.name not in held], [f for f in frames if f.name in held]

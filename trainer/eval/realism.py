@@ -24,7 +24,6 @@ from trainer.ddg.baselines import DEFAULT_MODEL, inpaint, randnoise
 from trainer.ddg.data import (
     POLICY_SPEC,
     RealDataError,
-    RealFrame,
     load_real_dir,
     policy_crop,
     source_of,
@@ -199,7 +198,7 @@ def _real_sets(cfg: MetricsConfig, rng: np.random.Generator) -> tuple[Crops, dic
     if not d4xx:
         raise RealDataError(f"{cfg.real}: no RealSense D4xx frames to use as the reference")
     if cfg.source:
-        train, reference = _by_source(d4xx, cfg.source)
+        train, reference = split(d4xx, holdout=(), leave_out=cfg.source)
     else:
         train, held = split(d4xx)
         if cfg.subset == "holdout" and not held:
@@ -209,16 +208,6 @@ def _real_sets(cfg: MetricsConfig, rng: np.random.Generator) -> tuple[Crops, dic
     crops = {name: _crops(fs, rng.integers(0, len(fs), cfg.sim_frames), rng)
              for name, fs in extra.items() if fs}
     return _crops(reference, np.repeat(np.arange(len(reference)), cfg.crops), rng), crops
-
-
-def _by_source(d4xx: list[RealFrame], source: str) -> tuple[list[RealFrame], list[RealFrame]]:
-    """(the other sources' D4xx frames, ``source``'s)."""
-    theirs = [f for f in d4xx if source_of(f.name) == source]
-    if not theirs:
-        known = sorted({source_of(f.name) for f in d4xx})
-        raise RealDataError(f"--source {source}: no D4xx frames of it; the D4xx sources are "
-                            f"{', '.join(known)}")
-    return [f for f in d4xx if source_of(f.name) != source], theirs
 
 
 def _seen_by_model(cfg: MetricsConfig) -> dict:
