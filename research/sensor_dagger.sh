@@ -15,7 +15,7 @@
 #
 # Every stage leaves its output under $DIFFUDEPGRASP_HOME/table2/$NAME (the project's home for long-lived artifacts,
 # default ~/.cache/diffudepgrasp, as trainer.student.recipe.default_home) and is skipped when that output is there:
-# a killed run resumes where it stopped (a half-collected store is collected again).
+# a killed run resumes where it stopped (a half-collected store or a half-done refit from where it was cut off).
 set -euo pipefail
 ROUNDS=${1:-3}
 SENSOR=${SENSOR:-stereo}
@@ -40,7 +40,6 @@ recover_shipped() {
 collect() {
     local store=$1 episodes=$2 seed=$3 learner=${4:-} beta=${5:-}
     [[ -f $store.done ]] && return
-    rm -rf "$store"
     log "collect $store ($episodes episodes${learner:+, learner $learner beta $beta})"
     python -m trainer student readout "$K/student.pt" --store "$store" --episodes "$episodes" --no-chunks \
         --sensor "$SENSOR" --objects "$TRAIN_KINDS" --seed "$seed" --workers "$WORKERS" --collect-only \
