@@ -4,6 +4,7 @@ it builds in seconds) for runtime, HIL and evaluation tests that need a policy f
 from __future__ import annotations
 
 import os
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,21 @@ from runtime.preprocess import DepthSpec
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 TINY_STUDENT = ("--width", "8", "--head-dims", "16", "32", "--state-features", "16", "--step-features", "16")
+
+SHORT_EPISODE_STEPS = 40
+
+
+@pytest.fixture
+def short_episodes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Episodes cut at ``SHORT_EPISODE_STEPS`` where the recipe and the success evaluation build their world:
+    a toy recipe's untrained learner otherwise runs every episode to the full 150 steps, each labelled by
+    looking the expert's chunk ahead, which was most of CI's time."""
+    from trainer.eval import success
+    from trainer.sim.env import EnvConfig
+    from trainer.student import recipe
+
+    for module in (recipe, success):
+        monkeypatch.setattr(module, "EnvConfig", partial(EnvConfig, max_steps=SHORT_EPISODE_STEPS))
 
 
 @pytest.fixture(scope="session")

@@ -151,7 +151,7 @@ def test_a_file_that_is_not_an_exported_student_is_refused_in_one_line(untrained
 
 
 @pytest.mark.slow
-def test_the_recipe_goes_on_from_a_recovered_file(composed_file, tmp_path):
+def test_the_recipe_goes_on_from_a_recovered_file(composed_file, tmp_path, short_episodes):
     """Round 0 starts from the recovered student (its head reads no depth features, hence
     ``--no-head-features``) and exports composed with the recovered head: at lr 0, the file's student."""
     from trainer.student.recipe import main as recipe_main
