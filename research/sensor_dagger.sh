@@ -55,7 +55,7 @@ fit() {
     log "fit round $round ($steps steps on $*)"
     python -m trainer student refit --init "$init" --stores "$@" --depth-source sensor --perception-only \
         --shares seen=0.45 squares=0.2 --steps "$steps" --batch 128 --lr 3e-4 --shift-px 6 --near-loss 1 \
-        --precision $PRECISION --threads 2 --out "$out"
+        --precision $PRECISION --threads 2 --ckpt-every 50 --out "$out"
     python -m trainer student compose --perception "$out/ckpt.pt" --head "$K/head.pt" --out "$D/c$round/student.pt"
     python -m export "$D/c$round/student.pt" --ddim-steps 4 --out "$onnx"
 }
