@@ -24,7 +24,7 @@ SHORT_EPISODE_STEPS = 40
 def short_episodes(monkeypatch: pytest.MonkeyPatch) -> None:
     """Episodes cut at ``SHORT_EPISODE_STEPS`` where the recipe and the success evaluation build their world:
     a toy recipe's untrained learner otherwise runs every episode to the full 150 steps, each labelled by
-    looking the expert's chunk ahead, which was most of CI's time."""
+    looking the expert's chunk ahead, which was most of these tests' time."""
     from trainer.eval import success
     from trainer.sim.env import EnvConfig
     from trainer.student import recipe
