@@ -4,10 +4,10 @@ A policy has ``reset(env_info)`` (the dict ``GraspEnv.reset`` returns) and ``act
 (env action: 7 joint deltas in [-1, 1] before the scale s, gripper -1/+1). ``obs`` is an ``Observation``
 holding all three views of the world, so a privileged teacher and a depth student share one loop.
 
-Specs: ``scripted`` | ``reactive`` | ``ppo:CHECKPOINT`` | ``student:ONNX`` | ``oracle:CKPT[@BIAS_CM]`` (the
-action head on the true object facts: ``trainer.student.oracle_policy``). Other engineers' modules provide
-``trainer.teacher.ppo.load(path)`` and ``trainer.student.onnx_policy.load(path)``; they are imported only
-when asked for. Add a kind by adding one entry to ``LOADERS``.
+Specs: ``scripted`` | ``reactive[:BIAS_CM]`` | ``ppo:CHECKPOINT`` | ``student:ONNX`` |
+``oracle:CKPT[@BIAS_CM]`` (the action head on the true object facts: ``trainer.student.oracle_policy``). Other
+engineers' modules provide ``trainer.teacher.ppo.load(path)`` and ``trainer.student.onnx_policy.load(path)``;
+they are imported only when asked for. Add a kind by adding one entry to ``LOADERS``.
 """
 
 from __future__ import annotations
@@ -55,11 +55,30 @@ def _scripted(_: str) -> Policy:
     return ScriptedExpert()
 
 
-def _reactive(_: str) -> Policy:
-    """The scripted planner with its phase read off each observation (no memory a student cannot see)."""
-    from trainer.teacher.scripted import ReactiveExpert
+def _reactive(bias: str) -> Policy:
+    """The scripted planner with its phase read off each observation (no memory a student cannot see);
+    ``reactive:B``: the same reading the object B cm off (``aim_bias``), the grasp's own tolerance."""
+    from trainer.teacher.scripted import BiasedExpert, ReactiveExpert
 
-    return ReactiveExpert()
+    if not bias:
+        return ReactiveExpert()
+    return BiasedExpert(bias_cm(f"reactive:{bias}", bias) / 100)
+
+
+def bias_cm(spec: str, bias: str) -> float:
+    """The centimetres after a spec's ``@`` or ``:``, refused in one line naming the spec."""
+    try:
+        return float(bias)
+    except ValueError:
+        raise PolicyError(f"{spec}: the bias is centimetres, e.g. reactive:1.0 or oracle:CKPT@0.5") from None
+
+
+def aim_bias(rng: np.random.Generator, bias_m: float) -> np.ndarray:
+    """The constant horizontal error, ``bias_m`` long, of a biased policy's reading of where the object is,
+    in a direction drawn from ``rng``: the episode's own, fresh from its seed, so every kind of biased policy
+    errs the same way in the same episode and their tolerance cells pair."""
+    angle = rng.uniform(0, 2 * np.pi)
+    return bias_m * np.array([np.cos(angle), np.sin(angle), 0.0])
 
 
 def _lazy(module: str, kind: str) -> Callable[[str], Policy]:
@@ -91,7 +110,7 @@ def parse(spec: str) -> tuple[str, str]:
     kind, _, arg = spec.partition(":")
     if kind not in LOADERS:
         raise PolicyError(f"unknown policy {spec!r}; expected one of: "
-                          "scripted, reactive, ppo:CKPT, student:ONNX, oracle:CKPT[@BIAS_CM]")
+                          "scripted, reactive[:BIAS_CM], ppo:CKPT, student:ONNX, oracle:CKPT[@BIAS_CM]")
     return kind, arg
 
 

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+import pytest
 
 from hil_sim.kinematics import ArmKinematics
+from trainer.policies import PolicyError, aim_bias, make_policy
 from trainer.sim.env import OBJECT_POSITION, OBJECT_QUAT, EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, run_episode
 from trainer.teacher.ppo import TeacherConfig
@@ -89,3 +91,26 @@ def _narrow_yaw(quat: np.ndarray) -> float:
     mat = np.zeros(9)
     mujoco.mju_quat2Mat(mat, quat)
     return float(np.arctan2(mat[4], mat[1]))
+
+
+def test_a_biased_expert_aims_where_it_believes_the_object_is():
+    """``reactive:B`` acts as the expert would on an object moved B cm sideways, in the direction an oracle of
+    the same bias errs in the same episode; a bias that is not a number is refused in one line."""
+    env = _env()
+    try:
+        obs, info = env.reset(seed=3)
+        biased, plain = make_policy("reactive:1.5"), ReactiveExpert()
+        biased.reset(info)
+        plain.reset(info)
+        offset = aim_bias(np.random.default_rng(info["episode"]["seed"]), 0.015)
+        assert np.linalg.norm(offset) == pytest.approx(0.015) and offset[2] == 0
+        moved = obs.copy()
+        moved[OBJECT_POSITION] += offset
+        np.testing.assert_allclose(biased.act(obs), plain.act(moved), atol=1e-6)
+        unbiased = ReactiveExpert()
+        unbiased.reset(info)
+        assert not np.allclose(biased.act(obs), unbiased.act(obs))  # the bias moved the aim
+    finally:
+        env.close()
+    with pytest.raises(PolicyError, match="reactive:far: the bias is centimetres"):
+        make_policy("reactive:far")

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from trainer.policies import Observation, PolicyError
+from trainer.policies import Observation, PolicyError, aim_bias, bias_cm
 from trainer.sim.labels import OFFSET, facts
 from trainer.student import checkpoint
 from trainer.student.ddim import ddim_plan, denoise
@@ -45,8 +45,7 @@ class OraclePolicy:
         self.queue.clear()
         self._extent = np.asarray(env_info["object_half_extent"], float)
         self._rng = np.random.default_rng(env_info["episode"]["seed"])
-        angle = self._rng.uniform(0, 2 * np.pi)
-        self._bias = self.bias_m * np.array([np.cos(angle), np.sin(angle), 0.0])
+        self._bias = aim_bias(self._rng, self.bias_m)
 
     def read_facts(self, obs: Observation) -> np.ndarray:
         """The facts the head reads at a new chunk: the true ones, the offset biased by ``bias_m``."""
@@ -69,8 +68,4 @@ class OraclePolicy:
 
 def load(spec: str) -> OraclePolicy:
     path, _, bias = spec.partition("@")
-    try:
-        bias_cm = float(bias) if bias else 0.0
-    except ValueError:
-        raise PolicyError(f"oracle:{spec}: the bias after @ is centimetres, e.g. oracle:CKPT@0.5") from None
-    return OraclePolicy(path, bias_cm / 100)
+    return OraclePolicy(path, bias_cm(f"oracle:{spec}", bias) / 100 if bias else 0.0)

@@ -193,6 +193,27 @@ class ReactiveExpert(ScriptedExpert):
         return grasp + [0.0, 0.0, c.approach_height_m * min(1.0, misalignment)], rot_goal, -1.0
 
 
+class BiasedExpert(ReactiveExpert):
+    """``ReactiveExpert`` reading the object ``bias_m`` off, in a horizontal direction drawn per episode
+    (``trainer.policies.aim_bias``): how far off a grasp may be aimed before it fails, the expert's own
+    tolerance beside the head's (``oracle:CKPT@B``). Never a labeller."""
+
+    def __init__(self, bias_m: float) -> None:
+        super().__init__()
+        self.bias_m, self._bias = bias_m, np.zeros(3)
+
+    def reset(self, env_info: dict) -> None:
+        from trainer.policies import aim_bias
+
+        super().reset(env_info)
+        self._bias = aim_bias(np.random.default_rng(env_info["episode"]["seed"]), self.bias_m)
+
+    def act(self, obs) -> np.ndarray:
+        priv = np.array(getattr(obs, "privileged", obs), float)
+        priv[OBJECT_POSITION] += self._bias
+        return super().act(priv)
+
+
 def _holding(priv: np.ndarray, ee: np.ndarray) -> bool:
     """The object is between the fingers (centre at most a fingertip's length, 7 cm, below the grasp site,
     fingers stopped short of shut)."""
