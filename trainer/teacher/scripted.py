@@ -21,6 +21,7 @@ import numpy as np
 
 from hil_sim.kinematics import ArmKinematics, rotation_error
 from hil_sim.world import TABLE_Z
+from trainer.policies import aim_bias
 from trainer.sim.env import FINGER_VELOCITIES, FINGERS, GRIPPER_COMMAND, OBJECT_POSITION, OBJECT_QUAT
 
 _Goal = tuple[np.ndarray, np.ndarray, float]
@@ -203,8 +204,6 @@ class BiasedExpert(ReactiveExpert):
         self.bias_m, self._bias = bias_m, np.zeros(3)
 
     def reset(self, env_info: dict) -> None:
-        from trainer.policies import aim_bias
-
         super().reset(env_info)
         self._bias = aim_bias(np.random.default_rng(env_info["episode"]["seed"]), self.bias_m)
 
