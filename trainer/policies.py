@@ -60,15 +60,14 @@ def _reactive(bias: str) -> Policy:
     ``reactive:B``: the same reading the object B cm off (``aim_bias``), the grasp's own tolerance."""
     from trainer.teacher.scripted import BiasedExpert, ReactiveExpert
 
-    if not bias:
-        return ReactiveExpert()
-    return BiasedExpert(bias_cm(f"reactive:{bias}", bias) / 100)
+    bias_m = aim_bias_m(f"reactive:{bias}", bias)
+    return BiasedExpert(bias_m) if bias_m else ReactiveExpert()
 
 
-def bias_cm(spec: str, bias: str) -> float:
-    """The centimetres after a spec's ``@`` or ``:``, refused in one line naming the spec."""
+def aim_bias_m(spec: str, bias: str) -> float:
+    """A spec's centimetres after ``@`` or ``:``, in metres (none: 0); refused in one line naming the spec."""
     try:
-        return float(bias)
+        return float(bias) / 100 if bias else 0.0
     except ValueError:
         raise PolicyError(f"{spec}: the bias is centimetres, e.g. reactive:1.0 or oracle:CKPT@0.5") from None
 

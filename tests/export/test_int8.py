@@ -8,7 +8,7 @@ import onnx
 import pytest
 
 from export.graph import build_model, read_metadata
-from export.quantize import MAX_ACTION_ERR, MIN_SPEEDUP, calibration_feeds, quantize_if_worth_it
+from export.quantize import MAX_ACTION_ERR, MIN_SPEEDUP, quantize_if_worth_it
 from tests.conftest import TINY_STUDENT
 from trainer.student import checkpoint
 from trainer.student.cli import main as student_main
@@ -28,8 +28,7 @@ def student(request, untrained_student_checkpoint, tmp_path_factory) -> Path:
 def test_int8_decision_follows_the_measurement(student):
     ckpt = checkpoint.load(student)
     model, meta = build_model(ckpt, student, 4)
-    feeds = calibration_feeds(meta, ckpt, count=8)  # the product calibrates on 32: 8 in a quarter of the time
-    out, report = quantize_if_worth_it(model, ckpt, threads=1, feeds=feeds)
+    out, report = quantize_if_worth_it(model, ckpt, threads=1)
     convs = [n.name for n in model.graph.node if n.op_type == "Conv"]
     encoder = [name for name in convs if "/head/" not in name]
     assert encoder and len(encoder) < len(convs) and report["quantised_convs"] == len(encoder)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from trainer.policies import Observation, PolicyError, aim_bias, bias_cm
+from trainer.policies import Observation, PolicyError, aim_bias, aim_bias_m
 from trainer.sim.labels import OFFSET, facts
 from trainer.student import checkpoint
 from trainer.student.ddim import ddim_plan, denoise
@@ -68,4 +68,4 @@ class OraclePolicy:
 
 def load(spec: str) -> OraclePolicy:
     path, _, bias = spec.partition("@")
-    return OraclePolicy(path, bias_cm(f"oracle:{spec}", bias) / 100 if bias else 0.0)
+    return OraclePolicy(path, aim_bias_m(f"oracle:{spec}", bias))
