@@ -33,6 +33,7 @@ from trainer.policies import Observation
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, OFFSET, SIZE, facts
 from trainer.sim.rollout import Job, run_episode
+from trainer.sim.sensors import make_sensor
 from trainer.student import checkpoint
 from trainer.student.model import hand_pose
 from trainer.student.oracle_policy import OraclePolicy
@@ -82,17 +83,18 @@ class ComposedPolicy(OraclePolicy):
         return super().act(obs)
 
 
-def grasp_rate(policy: ComposedPolicy, objects: str, episodes: int, seed: int = 10_000) -> dict:
-    """``policy``'s success over ``episodes`` of ``objects`` (seeds ``seed``.., kinds in turn, as ``trainer
-    evaluate``): with its interval, by kind and episode by episode (to pair two policies on the same
-    seeds)."""
-    kinds = select_kinds(objects)
+def grasp_rate(policy: ComposedPolicy, args: argparse.Namespace) -> dict:
+    """``policy``'s success over ``args.episodes`` of ``args.objects`` (seeds ``args.seed``.., kinds in turn,
+    as ``trainer evaluate``) under the depth sensor ``args.sensor``: with its interval, by kind and episode by
+    episode (to pair two policies on the same seeds)."""
+    kinds, episodes, seed = select_kinds(args.objects), args.episodes, args.seed
     env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=policy.meta.preprocess))
+    sensor = None if args.sensor == "clean" else make_sensor(args.sensor)
     by_kind: dict[str, list[bool]] = {}
     grasped = []
     for i in range(episodes):
         job = Job(seed + i, kinds[i % len(kinds)])
-        grasped.append(bool(run_episode(env, policy, job).success))
+        grasped.append(bool(run_episode(env, policy, job, sensor=sensor).success))
         by_kind.setdefault(job.kind, []).append(grasped[-1])
         print(f"{i + 1}/{episodes}: {sum(grasped)} grasped", flush=True)
     wins = sum(grasped)
@@ -108,6 +110,7 @@ def parser(doc: str, objects: str, episodes: int) -> argparse.ArgumentParser:
     p.add_argument("--objects", default=objects)
     p.add_argument("--episodes", type=int, default=episodes)
     p.add_argument("--seed", type=int, default=10_000, help="the first episode's seed")
+    p.add_argument("--sensor", default="clean", help="the depth sensor the policy sees (trainer evaluate's)")
     p.add_argument("--out", type=Path, help="the result as JSON (with each episode's outcome, for pairing)")
     return p
 
@@ -123,7 +126,7 @@ def main() -> None:
     p.add_argument("--true", nargs="*", default=[], choices=sorted(GROUPS))
     args = p.parse_args()
     policy = ComposedPolicy(args.student, args.head, tuple(args.true))
-    report({"true": args.true, **grasp_rate(policy, args.objects, args.episodes)}, args.out)
+    report({"true": args.true, **grasp_rate(policy, args)}, args.out)
 
 
 if __name__ == "__main__":

@@ -74,7 +74,7 @@ def main() -> None:
     p.add_argument("--stagger", type=int, default=0, help="read the others this many ticks before inference")
     args = p.parse_args()
     policy = EnsemblePolicy(args.student, args.head, args.also, args.stagger)
-    result = grasp_rate(policy, args.objects, args.episodes, args.seed)
+    result = grasp_rate(policy, args)
     report({"also": [str(a) for a in args.also], "stagger": args.stagger, **result}, args.out)
 
 

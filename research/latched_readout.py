@@ -73,7 +73,7 @@ def main() -> None:
     p.add_argument("--plain", action="store_true", help="without the latch")
     args = p.parse_args()
     policy = LatchedPolicy(args.student, args.head, latch=not args.plain)
-    result = {"latch": not args.plain, **grasp_rate(policy, args.objects, args.episodes)}
+    result = {"latch": not args.plain, **grasp_rate(policy, args)}
     print(json.dumps({k: v for k, v in result.items() if k != "grasped"}))
     if args.out:
         args.out.write_text(json.dumps(result, indent=1))

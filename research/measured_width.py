@@ -60,7 +60,7 @@ def main() -> None:
     p.add_argument("--jump-cm", type=float, default=1.5)
     args = p.parse_args()
     policy = MeasuredWidthPolicy(args.student, args.head, args.gain, args.size, args.high_cm, args.jump_cm)
-    result = grasp_rate(policy, args.objects, args.episodes)
+    result = grasp_rate(policy, args)
     report({"gain": args.gain, "size": args.size, **result}, args.out)
 
 

@@ -48,7 +48,7 @@ def main() -> None:
                    help="facts from the simulator, as composed_policy.py takes them")
     args = p.parse_args()
     policy = SightPolicy(args.student, args.head, tuple(args.true))
-    report({"sight": True, "true": args.true, **grasp_rate(policy, args.objects, args.episodes)}, args.out)
+    report({"sight": True, "true": args.true, **grasp_rate(policy, args)}, args.out)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,58 @@
+# The stages of a depth readout's rounds under one depth source (issue 45), sourced by research/sensor_dagger.sh
+# and research/offcentre_readout.sh. Env: SENSOR (stereo), NAME (ceiling), WORKERS (2: simulation processes).
+#
+# Every stage leaves its output under $DIFFUDEPGRASP_HOME/table2/$NAME (the project's home for long-lived artifacts,
+# default ~/.cache/diffudepgrasp, as trainer.student.recipe.default_home) and is skipped when that output is there:
+# a killed run resumes where it stopped (a half-collected store or a half-done refit from where it was cut off).
+SENSOR=${SENSOR:-stereo}
+NAME=${NAME:-ceiling}
+WORKERS=${WORKERS:-2}
+R=${DIFFUDEPGRASP_HOME:-$HOME/.cache/diffudepgrasp}
+K=$R/recovered/shipped
+D=$R/table2/$NAME
+TRAIN_KINDS=seen,squares,shapes
+# bf16 fits run ~2x faster where the CPU has bf16 arithmetic and ~13x slower where it has none
+PRECISION=$(grep -q -w -e avx512_bf16 -e amx_bf16 /proc/cpuinfo && echo bf16 || echo fp32)
+mkdir -p "$D" "$R/table2/cells"
+
+log() { echo "[$(date +%H:%M:%S)] $*"; }
+
+recover_shipped() {
+    [[ -f $K/head.pt ]] || python -m export.recover models/student.onnx --out "$K"
+}
+
+# collect STORE EPISODES SEED [DRIVER BETA]: a labelled store of frames under $SENSOR, marked done when complete;
+# DRIVER is a policy spec (student:ONNX, reactive:BIAS_CM), else the expert drives.
+collect() {
+    local store=$1 episodes=$2 seed=$3 driver=${4:-} beta=${5:-}
+    [[ -f $store.done ]] && return
+    log "collect $store ($episodes episodes${driver:+, $driver driving, beta $beta})"
+    python -m trainer student readout "$K/student.pt" --store "$store" --episodes "$episodes" --no-chunks \
+        --sensor "$SENSOR" --objects "$TRAIN_KINDS" --seed "$seed" --workers "$WORKERS" --collect-only \
+        ${driver:+--learner $driver --beta $beta}
+    touch "$store.done"
+}
+
+# fit ROUND INIT STORES...: INIT's first readout refitted 400 steps, composed with M0, exported.
+fit() {
+    local round=$1 init=$2 steps=400; shift 2
+    local out=$D/fit$round onnx=$D/c$round/student.onnx
+    [[ -f $onnx ]] && return
+    log "fit round $round ($steps steps on $*)"
+    python -m trainer student refit --init "$init" --stores "$@" --depth-source sensor --perception-only \
+        --shares seen=0.45 squares=0.2 --steps "$steps" --batch 128 --lr 3e-4 --shift-px 6 --near-loss 1 \
+        --precision $PRECISION --threads 2 --ckpt-every 50 --out "$out"
+    python -m trainer student compose --perception "$out/ckpt.pt" --head "$K/head.pt" --out "$D/c$round/student.pt"
+    python -m export "$D/c$round/student.pt" --ddim-steps 4 --out "$onnx"
+}
+
+# cell ROUND: 180 seen-kind episodes under stereo, seeds 10000.., the table's cell.
+cell() {
+    local json=$R/table2/cells/${NAME}_r$1_stereo_seen.json
+    [[ -f $json ]] && return
+    log "cell round $1"
+    python -m trainer evaluate --policy "student:$D/c$1/student.onnx" --sensor stereo --objects seen \
+        --episodes 180 --workers "$WORKERS" --json "$json.part"
+    mv "$json.part" "$json"
+}
+
