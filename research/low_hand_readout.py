@@ -1,0 +1,141 @@
+"""Does a depth readout see the hand beside the object once it is low (issue 45)? On a labelled store's
+frames (a learner's own states, as a DAgger round stores them): by the hand's height over the object, how much
+of the true horizontal offset the readout reads (the slope of read on true: 1 sees it, 0 reads "on target"
+whatever it is); at each episode's first close, how far off the hand closed against what the readout read just
+before; and whether the object's place averaged while the hand was high (a latch) would read the close better.
+
+    PYTHONPATH=. python research/low_hand_readout.py CKPT STORE [--depth-source sensor] [--out J]
+
+CKPT: a depth student or composed checkpoint (``student.pt``); STORE: a store with its frames' labels
+(``trainer student readout --store``). Frames are read as ``trainer student readout`` reads them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from research import readout_probes
+from trainer.dataset import DemoStore
+from trainer.sim.labels import OFFSET, READOUT
+from trainer.student import checkpoint
+from trainer.student.model import hand_pose
+from trainer.student.steps import STORED, LabelledSteps
+
+OPEN_M = 0.075
+"""A gripper opening below this (fully open: 0.08 m) is a close."""
+BANDS_CM = ((-3, 1), (1, 3), (3, 5), (5, 8), (8, 12), (12, 18), (18, 30))
+"""Heights of the grasp site over the object's centre whose frames are judged together."""
+BESIDE_CM = 4.0
+"""Only frames with the hand this near the object (horizontally) count for the slopes."""
+LATCH_CM = (6.0, 20.0)
+"""The hand heights over the table whose readings of the object's place a latch averages."""
+
+
+def slopes(read: np.ndarray, true: np.ndarray, opened: np.ndarray) -> list[dict]:
+    """Per height band: the read offset's slope on the true one in x and y, and the horizontal error (cm)."""
+    above, apart = -true[:, 2] * 100, np.linalg.norm(true[:, :2], axis=1) * 100
+    rows = []
+    for lo, hi in BANDS_CM:
+        m = (above >= lo) & (above < hi) & (apart < BESIDE_CM) & opened
+        if m.sum() < 20:
+            continue
+        error = np.linalg.norm((read - true)[m, :2], axis=1) * 100
+        rows.append({"above_cm": [lo, hi], "frames": int(m.sum()),
+                     "true_xy_cm_median": _r(np.median(apart[m])),
+                     "slope_x": _r(np.polyfit(true[m, 0], read[m, 0], 1)[0]),
+                     "slope_y": _r(np.polyfit(true[m, 1], read[m, 1], 1)[0]),
+                     "error_xy_cm_median": _r(np.median(error)),
+                     "error_xy_cm_p90": _r(np.percentile(error, 90))})
+    return rows
+
+
+def at_close(read: np.ndarray, true: np.ndarray, opened: np.ndarray, ends: np.ndarray) -> dict:
+    """At each episode's first close: the hand's horizontal miss, and the readout's error over the 4 frames
+    before it."""
+    miss, error = [], []
+    for start, end in spans(ends):
+        closed = np.nonzero(~opened[start:end])[0]
+        if not len(closed) or closed[0] == 0:
+            continue
+        last = start + closed[0] - 1
+        before = slice(max(start, last - 3), last + 1)
+        miss.append(true[last, :2] * 100)
+        error.append((read[before, :2] - true[before, :2]).mean(0) * 100)
+    if not miss:  # e.g. drivers that never close
+        return {"episodes_closed": 0}
+    miss, error = np.array(miss), np.array(error)
+    miss_cm, error_cm = np.linalg.norm(miss, axis=1), np.linalg.norm(error, axis=1)
+    return {"episodes_closed": len(miss), "miss_cm_median": _r(np.median(miss_cm)),
+            "miss_cm_p90": _r(np.percentile(miss_cm, 90)), "error_cm_median": _r(np.median(error_cm)),
+            "error_cm_p90": _r(np.percentile(error_cm, 90)),
+            "corr_miss_error_xy": [_r(np.corrcoef(miss[:, i], error[:, i])[0, 1]) for i in (0, 1)],
+            "share_missed_over_cm": {str(t): _r(np.mean(miss_cm > t)) for t in (0.5, 1.0, 1.5)}}
+
+
+def latch(read: np.ndarray, true: np.ndarray, hand: np.ndarray, opened: np.ndarray, ends: np.ndarray) -> dict:
+    """Near the grasp (hand < 6 cm over the object, < 3 cm beside it, open): the horizontal error (cm, mean
+    per episode) of each frame's reading of the object's place against the mean of the readings while the hand
+    was ``LATCH_CM`` over the table and the readout put the object within 10 cm."""
+    per_frame, latched = [], []
+    place_read, place_true = hand + read, hand + true
+    for start, end in spans(ends):
+        span = np.zeros(len(read), bool)
+        span[start:end] = True
+        high = (span & opened & (hand[:, 2] * 100 >= LATCH_CM[0]) & (hand[:, 2] * 100 < LATCH_CM[1])
+                & (np.linalg.norm(read[:, :2], axis=1) < 0.10))
+        near = span & opened & (-true[:, 2] < 0.06) & (np.linalg.norm(true[:, :2], axis=1) < 0.03)
+        if not high.any() or not near.any():
+            continue
+        err = place_read[near, :2] - place_true[near, :2]
+        per_frame.append(np.linalg.norm(err, axis=1).mean() * 100)
+        err = place_read[high, :2].mean(0) - place_true[near, :2]
+        latched.append(np.linalg.norm(err, axis=1).mean() * 100)
+    if not per_frame:
+        return {"episodes": 0}
+    per_frame, latched = np.array(per_frame), np.array(latched)
+    return {"episodes": len(per_frame), "per_frame_cm_median": _r(np.median(per_frame)),
+            "per_frame_cm_p90": _r(np.percentile(per_frame, 90)), "latched_cm_median": _r(np.median(latched)),
+            "latched_cm_p90": _r(np.percentile(latched, 90)),
+            "latched_better_share": _r(np.mean(latched < per_frame))}
+
+
+def spans(ends: np.ndarray) -> list[tuple[int, int]]:
+    """Each episode's (first, past-last) frame from the store's episode ends."""
+    starts = np.concatenate([[0], ends[:-1]])
+    return [(int(a), int(b)) for a, b in zip(starts, ends, strict=True)]
+
+
+def _r(x: float) -> float:
+    return round(float(x), 3)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("checkpoint", type=Path)
+    p.add_argument("store", type=Path)
+    p.add_argument("--depth-source", choices=sorted(STORED), default="sensor")
+    p.add_argument("--out", type=Path)
+    args = p.parse_args()
+    torch.set_num_threads(1)
+    net = checkpoint.load(args.checkpoint).policy()
+    steps = LabelledSteps([args.store], net.config.obs_horizon, net.config.action_horizon, depth=True,
+                          chunks=False, depth_source=args.depth_source)
+    read, true = readout_probes.read(net, steps)[:, OFFSET], steps.labels_np[:, :READOUT][:, OFFSET]
+    state = steps.state_np
+    hand = hand_pose(torch.from_numpy(state.astype(np.float32))).numpy()[:, :3]
+    opened, ends = state[:, 7] >= OPEN_M, DemoStore.open(args.store).episode_ends
+    result = {"checkpoint": str(args.checkpoint), "store": str(args.store), "frames": len(read),
+              "by_height": slopes(read, true, opened), "at_close": at_close(read, true, opened, ends),
+              "latch": latch(read, true, hand, opened, ends)}
+    print(json.dumps(result, indent=1))
+    if args.out:
+        args.out.write_text(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()
