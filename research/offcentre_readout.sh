@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Off-centre descents for the depth readout under one depth source (issue 45, docs/table2.md).
 #
-#   research/offcentre_readout.sh [FROM]   # env: SENSOR, NAME, WORKERS (research/sensor_stages.sh),
-#                                          #      OFFCENTRE_CM ("1.0 2.0": the aim errors of the drivers)
+#   research/offcentre_readout.sh [FROM [ROUNDS]]   # env: SENSOR, NAME, WORKERS (research/sensor_stages.sh),
+#                                                   #      OFFCENTRE_CM ("1.0 2.0": the aim errors of the drivers)
 #
 # Why: on the learner's own stereo frames the ceiling's readout reads the hand on target once it is below ~12 cm
 # over the object, whatever the true offset (round 2's frames, c1's readout: the read offset's slope on the true
@@ -13,8 +13,11 @@
 # FROM: the round of research/sensor_dagger.sh whose readout is warm-started and whose stores are kept. Its
 # readout is refitted 400 steps on those and the off-centre stores (round "oc"), composed with M0 and exported;
 # both readouts are measured on 20 held-out off-centre episodes (B 1.5 cm); then a 180-episode cell under stereo.
+# ROUNDS (0) more DAgger rounds follow as research/sensor_dagger.sh's do (the last readout drives 150 episodes at
+# beta 0.5^(FROM + k), every store so far refitted 400 steps, a cell each), the off-centre stores kept: oc1, oc2 ...
 set -euo pipefail
 FROM=${1:-2}
+ROUNDS=${2:-0}
 OFFCENTRE_CM=${OFFCENTRE_CM:-"1.0 2.0"}
 source "$(dirname "$0")/sensor_stages.sh"
 
@@ -42,4 +45,11 @@ measure "$FROM" "$heldout"
 fit oc "$D/fit$FROM/ckpt.pt" "${stores[@]}"
 measure oc "$heldout"
 cell oc
-log "done: $D/coc"
+prev=oc
+for ((k = 1; k <= ROUNDS; k++)); do
+    beta=$(python -c "print(0.5 ** ($FROM + $k))")
+    dagger_round "oc$k" "$prev" $((70000 + 1000 * k)) "$beta"
+    cell "oc$k"
+    prev=oc$k
+done
+log "done: $D/c$prev"

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # DAgger rounds for the depth readout under one depth source (issue 45, docs/table2.md), from nothing or resumed.
 #
-#   research/sensor_dagger.sh [ROUNDS]   # env: SENSOR (stereo), NAME (ceiling), CELLS ("2 3": rounds to judge),
+#   research/sensor_dagger.sh [ROUNDS]   # env: SENSOR (stereo), NAME (ceiling), CELLS ("2 3": rounds to judge; "" none),
 #                                        #      WORKERS (2: simulation processes; 15 on a lent 16-core machine)
 #
 # Round 0: the expert drives 80 episodes under $SENSOR on the training kinds; the shipped file's first readout is
@@ -15,7 +15,7 @@
 # Every stage is resumed (research/sensor_stages.sh).
 set -euo pipefail
 ROUNDS=${1:-3}
-CELLS=${CELLS:-"2 3"}
+CELLS=${CELLS-"2 3"}
 source "$(dirname "$0")/sensor_stages.sh"
 
 recover_shipped
@@ -24,9 +24,7 @@ stores=("$D/round0.zarr")
 fit 0 "$K/student.pt" "${stores[@]}"
 for ((r = 1; r <= ROUNDS; r++)); do
     beta=$(python -c "print(0.5 ** $r)")
-    collect "$D/round$r.zarr" 150 $((52000 + 1000 * (r - 1))) "student:$D/c$((r - 1))/student.onnx" "$beta"
-    stores+=("$D/round$r.zarr")
-    fit "$r" "$D/fit$((r - 1))/ckpt.pt" "${stores[@]}"
+    dagger_round "$r" $((r - 1)) $((52000 + 1000 * (r - 1))) "$beta"
     [[ " $CELLS " == *" $r "* ]] && cell "$r"
 done
 log "done: $D"

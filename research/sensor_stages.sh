@@ -46,6 +46,16 @@ fit() {
     python -m export "$D/c$round/student.pt" --ddim-steps 4 --out "$onnx"
 }
 
+# dagger_round ROUND PREV SEED BETA: round PREV's composed learner drives 150 episodes under $SENSOR (DAgger: a
+# step executes the expert's action with probability BETA) into round ROUND's store, added to the array `stores`;
+# PREV's readout is refitted on all of them.
+dagger_round() {
+    local round=$1 prev=$2 seed=$3 beta=$4
+    collect "$D/round$round.zarr" 150 "$seed" "student:$D/c$prev/student.onnx" "$beta"
+    stores+=("$D/round$round.zarr")
+    fit "$round" "$D/fit$prev/ckpt.pt" "${stores[@]}"
+}
+
 # cell ROUND: 180 seen-kind episodes under stereo, seeds 10000.., the table's cell.
 cell() {
     local json=$R/table2/cells/${NAME}_r$1_stereo_seen.json
