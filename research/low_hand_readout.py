@@ -4,10 +4,11 @@ of the true horizontal offset the readout reads (the slope of read on true: 1 se
 whatever it is); at each episode's first close, how far off the hand closed against what the readout read just
 before; and whether the object's place averaged while the hand was high (a latch) would read the close better.
 
-    PYTHONPATH=. python research/low_hand_readout.py CKPT STORE [--depth-source sensor] [--out J]
+    PYTHONPATH=. python research/low_hand_readout.py CKPT STORE [--also CKPT ...] [--out J]
 
 CKPT: a depth student or composed checkpoint (``student.pt``); STORE: a store with its frames' labels
-(``trainer student readout --store``). Frames are read as ``trainer student readout`` reads them.
+(``trainer student readout --store``). Frames are read as ``trainer student readout`` reads them. With
+``--also``, the readings of every checkpoint are averaged, as an exported pair of readouts averages them.
 """
 
 from __future__ import annotations
@@ -36,9 +37,12 @@ LATCH_CM = (6.0, 20.0)
 """The hand heights over the table whose readings of the object's place a latch averages."""
 
 
-def slopes(read: np.ndarray, true: np.ndarray, opened: np.ndarray) -> list[dict]:
-    """Per height band: the read offset's slope on the true one in x and y, and the horizontal error (cm)."""
+def slopes(read: np.ndarray, true: np.ndarray, opened: np.ndarray, ends: np.ndarray) -> list[dict]:
+    """Per height band: the read offset's slope on the true one in x and y, the horizontal error (cm), and the
+    share of the error's variance that is one constant per episode (1: averaging an episode's frames cannot
+    help; 0: every frame errs afresh)."""
     above, apart = -true[:, 2] * 100, np.linalg.norm(true[:, :2], axis=1) * 100
+    episode = np.searchsorted(ends, np.arange(len(read)), side="right")
     rows = []
     for lo, hi in BANDS_CM:
         m = (above >= lo) & (above < hi) & (apart < BESIDE_CM) & opened
@@ -50,8 +54,16 @@ def slopes(read: np.ndarray, true: np.ndarray, opened: np.ndarray) -> list[dict]
                      "slope_x": _r(np.polyfit(true[m, 0], read[m, 0], 1)[0]),
                      "slope_y": _r(np.polyfit(true[m, 1], read[m, 1], 1)[0]),
                      "error_xy_cm_median": _r(np.median(error)),
-                     "error_xy_cm_p90": _r(np.percentile(error, 90))})
+                     "error_xy_cm_p90": _r(np.percentile(error, 90)),
+                     "episode_share": _r(episode_share((read - true)[m, :2], episode[m]))})
     return rows
+
+
+def episode_share(error: np.ndarray, episode: np.ndarray) -> float:
+    """The share of the error's variance (x and y summed) explained by each episode's mean error."""
+    _, group = np.unique(episode, return_inverse=True)
+    means = np.stack([np.bincount(group, error[:, i]) / np.bincount(group) for i in range(error.shape[1])], 1)
+    return float(((means[group] - error.mean(0)) ** 2).sum() / ((error - error.mean(0)) ** 2).sum())
 
 
 def at_close(read: np.ndarray, true: np.ndarray, opened: np.ndarray, ends: np.ndarray) -> dict:
@@ -118,20 +130,23 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("checkpoint", type=Path)
     p.add_argument("store", type=Path)
+    p.add_argument("--also", type=Path, nargs="+", default=[],
+                   help="more checkpoints whose readings are averaged with CKPT's")
     p.add_argument("--depth-source", choices=sorted(STORED), default="sensor")
     p.add_argument("--out", type=Path)
     args = p.parse_args()
     torch.set_num_threads(1)
-    net = checkpoint.load(args.checkpoint).policy()
-    steps = LabelledSteps([args.store], net.config.obs_horizon, net.config.action_horizon, depth=True,
+    nets = [checkpoint.load(ckpt).policy() for ckpt in [args.checkpoint, *args.also]]
+    steps = LabelledSteps([args.store], nets[0].config.obs_horizon, nets[0].config.action_horizon, depth=True,
                           chunks=False, depth_source=args.depth_source)
-    read, true = readout_probes.read(net, steps)[:, OFFSET], steps.labels_np[:, :READOUT][:, OFFSET]
+    read = np.mean([readout_probes.read(net, steps)[:, OFFSET] for net in nets], axis=0)
+    true = steps.labels_np[:, :READOUT][:, OFFSET]
     state = steps.state_np
     hand = hand_pose(torch.from_numpy(state.astype(np.float32))).numpy()[:, :3]
     opened, ends = state[:, 7] >= OPEN_M, DemoStore.open(args.store).episode_ends
-    result = {"checkpoint": str(args.checkpoint), "store": str(args.store), "frames": len(read),
-              "by_height": slopes(read, true, opened), "at_close": at_close(read, true, opened, ends),
-              "latch": latch(read, true, hand, opened, ends)}
+    result = {"checkpoint": str(args.checkpoint), "also": [str(c) for c in args.also],
+              "store": str(args.store), "frames": len(read), "by_height": slopes(read, true, opened, ends),
+              "at_close": at_close(read, true, opened, ends), "latch": latch(read, true, hand, opened, ends)}
     print(json.dumps(result, indent=1))
     if args.out:
         args.out.write_text(json.dumps(result, indent=1))
