@@ -101,6 +101,22 @@ def test_a_dagger_round_records_the_learners_states_with_the_experts_labels(tmp_
     assert not np.allclose(ep["action"][:, :7], ep["chunk"][:, 0, :7], atol=0.05)  # the learner drove
 
 
+def test_a_round_of_approaches_ends_each_episode_before_the_hand_is_low(tmp_path):
+    """``RoundSpec.end_height_m``: the episode stops at the first frame whose grasp site is that low over the
+    object, which is not stored; the frames before it are the full episode's."""
+    config = EnvConfig(objects=("cube",), max_steps=60, render_depth=False)
+    for name, end in (("full", 0.0), ("approach", 0.12)):
+        collect_round(tmp_path / f"{name}.zarr", config, RoundSpec(horizon=0, end_height_m=end), episodes=1,
+                      seed=7)
+    full, approach = (DemoStore.open(tmp_path / f"{n}.zarr").episode(0)["labels"]
+                      for n in ("full", "approach"))
+    height = -full[:, OFFSET][:, 2]
+    first_low = int(np.argmax(height < 0.12))
+    assert 0 < first_low < len(full) - 1  # the expert's hand went below 12 cm within the episode
+    assert len(approach) == first_low
+    np.testing.assert_array_equal(approach, full[:first_low])
+
+
 def test_a_round_without_chunks_drives_the_same_states_and_labels_its_frames_alone(tmp_path):
     """``RoundSpec.horizon`` 0 skips the expert's lookahead (3/4 of an episode's time): the learner reaches
     the same states with the same labels, the store holds no chunks, and ``beta`` still hands steps to the

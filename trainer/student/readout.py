@@ -199,6 +199,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="label the frames alone, not with the expert's action chunks from each state (its "
                         "lookahead is ~3/4 of an episode's time): a store for `trainer student refit "
                         "--perception-only`")
+    p.add_argument("--end-height-cm", type=float, default=0.0,
+                   help="end each collected episode once the grasp site is first this low over the object "
+                        "(0: run it to the end): a store of the approach alone, where the aim is set")
     p.add_argument("--collect-only", action="store_true",
                    help="collect the episodes into --store and measure nothing (a store for `trainer student "
                         "refit`: measuring 30k frames takes minutes)")
@@ -215,12 +218,15 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if not 0.0 <= args.beta <= 1.0:
         p.error(f"--beta {args.beta}: a share, between 0 and 1")
+    if args.end_height_cm < 0:
+        p.error(f"--end-height-cm {args.end_height_cm}: a height over the object, >= 0")
     try:
         if args.episodes:
             spec = checkpoint.load(args.checkpoint).info.depth_spec
             env = EnvConfig(objects=select_kinds(args.objects), depth=spec)
             labelling = RoundSpec(learner=args.learner, horizon=0 if args.no_chunks else RoundSpec.horizon,
-                                  sensor=args.sensor or "clean", beta=args.beta)
+                                  sensor=args.sensor or "clean", beta=args.beta,
+                                  end_height_m=args.end_height_cm / 100)
             collect_round(args.store, env, labelling, episodes=args.episodes, seed=args.seed,
                           workers=args.workers)
         if args.collect_only:
