@@ -21,15 +21,16 @@ recover_shipped() {
     [[ -f $K/head.pt ]] || python -m export.recover models/student.onnx --out "$K"
 }
 
-# collect STORE EPISODES SEED [DRIVER BETA]: a labelled store of frames under $SENSOR, marked done when complete;
-# DRIVER is a policy spec (student:ONNX, reactive:BIAS_CM), else the expert drives.
+# collect STORE EPISODES SEED [DRIVER BETA [END_CM]]: a labelled store of frames under $SENSOR, marked done when
+# complete; DRIVER is a policy spec (student:ONNX, reactive:BIAS_CM), else the expert drives; with END_CM each
+# episode ends once the grasp site is that low over the object (the approach alone).
 collect() {
-    local store=$1 episodes=$2 seed=$3 driver=${4:-} beta=${5:-}
+    local store=$1 episodes=$2 seed=$3 driver=${4:-} beta=${5:-} end_cm=${6:-0}
     [[ -f $store.done ]] && return
     log "collect $store ($episodes episodes${driver:+, $driver driving, beta $beta})"
     python -m trainer student readout "$K/student.pt" --store "$store" --episodes "$episodes" --no-chunks \
         --sensor "$SENSOR" --objects "$TRAIN_KINDS" --seed "$seed" --workers "$WORKERS" --collect-only \
-        ${driver:+--learner $driver --beta $beta}
+        --end-height-cm "$end_cm" ${driver:+--learner $driver --beta $beta}
     touch "$store.done"
 }
 
