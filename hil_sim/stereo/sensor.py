@@ -75,6 +75,21 @@ class Rig:
         return self.frame(seen, materials, np.random.default_rng(seed))
 
 
+def episode_rng(seed: int) -> np.random.Generator:
+    """Every random draw of episode ``seed``'s frames comes from this generator."""
+    return np.random.default_rng([PATTERN_SEED, seed])
+
+
+def draw_material(rng: np.random.Generator, params: StereoParams) -> str:
+    """The object's IR material of an episode: the first draw from its generator."""
+    return ir.MATERIAL_KINDS[int(rng.choice(len(ir.MATERIAL_KINDS), p=params.material_probs))]
+
+
+def episode_material(seed: int, params: StereoParams) -> str:
+    """The object's IR material in episode ``seed``, as ``StereoSensor.reset`` draws it, without a world."""
+    return draw_material(episode_rng(seed), params)
+
+
 class StereoSensor:
     """Scene sensor: ``reset(world, seed)`` at each episode start, then ``stream(world)`` per frame."""
 
@@ -89,8 +104,8 @@ class StereoSensor:
         """Bind to ``world`` (first call builds the renderer) and draw this episode's IR materials."""
         if world is not self._world:
             self._bind(world)
-        self._rng = np.random.default_rng([PATTERN_SEED, seed])
-        self.material = ir.MATERIAL_KINDS[int(self._rng.choice(3, p=self.params.material_probs))]
+        self._rng = episode_rng(seed)
+        self.material = draw_material(self._rng, self.params)
         self._materials = self.materials_for(self.material)
 
     def materials_for(self, kind: str) -> ir.Materials:

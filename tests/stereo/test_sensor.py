@@ -9,7 +9,7 @@ from hil_sim.camera import d455_intrinsics
 from hil_sim.stereo import StereoParams
 from hil_sim.stereo.ir import value_noise
 from hil_sim.stereo.match import INVALID
-from hil_sim.stereo.sensor import Rig
+from hil_sim.stereo.sensor import Rig, episode_material
 from tests.stereo.conftest import box_columns, box_scene, materials
 
 
@@ -71,6 +71,15 @@ def test_world_frames_are_deterministic_under_a_seed(world, sensor):
     assert first.shape == (480, 848) and first.dtype == np.uint16
     np.testing.assert_array_equal(first, again)
     assert np.any(first != other), "a different seed must draw different noise"
+
+
+def test_an_episodes_material_is_known_from_its_seed_without_a_world(world, sensor):
+    drawn = []
+    for seed in range(12):
+        sensor.reset(world, seed)
+        assert sensor.material == episode_material(seed, sensor.params)
+        drawn.append(sensor.material)
+    assert len(set(drawn)) == 3, f"12 episodes should draw every material, drew {sorted(set(drawn))}"
 
 
 def test_world_depth_matches_the_exact_depth_where_valid(world, sensor):
