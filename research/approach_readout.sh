@@ -8,8 +8,8 @@
 #
 # Round FROM's learner drives EPISODES approaches under $SENSOR (beta 0.5^(FROM+1), as round FROM+1's); round
 # FROM's readout is refitted 400 steps on rounds 0..FROM+1 and the approaches ("aim"): round FROM+1's readout
-# (`sensor_dagger.sh`) with the approaches added, on the same seeds, init and steps. Then the offline readout on
-# the held-out off-centre episodes (`offcentre_readout.sh`) and a 180-episode seen-kind cell under stereo.
+# (`sensor_dagger.sh`) with the approaches added, on the same seeds, init and steps. The gate: both readouts and
+# round FROM's on 40 held-out approaches (the same learner, other seeds), then a 180-episode seen-kind cell.
 # Every stage is resumed (research/sensor_stages.sh).
 set -euo pipefail
 FROM=${1:-2}
@@ -24,9 +24,12 @@ for ((r = 0; r <= FROM + 1; r++)); do
 done
 beta=$(python -c "print(0.5 ** ($FROM + 1))")
 collect "$D/approach.zarr" "$EPISODES" 58000 "student:$D/c$FROM/student.onnx" "$beta" 12
+collect "$D/approach_heldout.zarr" 40 59000 "student:$D/c$FROM/student.onnx" "$beta" 12
 fit aim "$D/fit$FROM/ckpt.pt" "${stores[@]}" "$D/approach.zarr"
-heldout=$R/table2/low_hand/caim_offcentre_heldout.json
-[[ -f $heldout ]] || PYTHONPATH=. python research/low_hand_readout.py "$D/caim/student.pt" \
-    "$D/offcentre_heldout.zarr" --out "$heldout"
+for c in "c$FROM" "c$((FROM + 1))" caim; do
+    out=$R/table2/low_hand/${c}_approach_heldout.json
+    [[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$D/$c/student.pt" \
+        "$D/approach_heldout.zarr" --out "$out" > /dev/null
+done
 cell aim
 log "done: $D/caim"
