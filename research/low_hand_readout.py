@@ -96,16 +96,16 @@ def latch(read: np.ndarray, true: np.ndarray, hand: np.ndarray, opened: np.ndarr
     per_frame, latched = [], []
     place_read, place_true = hand + read, hand + true
     for start, end in spans(ends):
-        span = np.zeros(len(read), bool)
-        span[start:end] = True
-        high = (span & opened & (hand[:, 2] * 100 >= LATCH_CM[0]) & (hand[:, 2] * 100 < LATCH_CM[1])
-                & (np.linalg.norm(read[:, :2], axis=1) < 0.10))
-        near = span & opened & (-true[:, 2] < 0.06) & (np.linalg.norm(true[:, :2], axis=1) < 0.03)
+        ep = slice(start, end)
+        height_cm = hand[ep, 2] * 100
+        high = (opened[ep] & (height_cm >= LATCH_CM[0]) & (height_cm < LATCH_CM[1])
+                & (np.linalg.norm(read[ep, :2], axis=1) < 0.10))
+        near = opened[ep] & (-true[ep, 2] < 0.06) & (np.linalg.norm(true[ep, :2], axis=1) < 0.03)
         if not high.any() or not near.any():
             continue
-        err = place_read[near, :2] - place_true[near, :2]
+        err = place_read[ep][near, :2] - place_true[ep][near, :2]
         per_frame.append(np.linalg.norm(err, axis=1).mean() * 100)
-        err = place_read[high, :2].mean(0) - place_true[near, :2]
+        err = place_read[ep][high, :2].mean(0) - place_true[ep][near, :2]
         latched.append(np.linalg.norm(err, axis=1).mean() * 100)
     if not per_frame:
         return {"episodes": 0}
