@@ -1,15 +1,17 @@
 #!/usr/bin/env bash
-# More scenes where the aim is set (issue 45, docs/table2.md): under stereo the ceiling's readout reads its
-# training scenes' high frames 0.56 cm off and new scenes' 1.30 cm (hand 18-30 cm over the object, one constant
-# per episode): it memorises scenes. An approach ends once the grasp site is 12 cm over the object, a quarter of
-# a learner episode's frames, so the same time collects ~3x the scenes of the frames that set the aim.
+# More scenes where the aim is set (issue 45, docs/table2.md): under stereo the ceiling's readout reads
+# its training scenes' high frames 0.56 cm off and new scenes' 1.30 cm (hand 18-30 cm over the object, one
+# constant per episode): it memorises scenes. An approach ends once the grasp site is 12 cm over the object,
+# a quarter of a learner episode's frames, so the same time collects ~3x the scenes of the frames that set
+# the aim.
 #
-#   research/approach_readout.sh [FROM [EPISODES]]   # env as research/sensor_dagger.sh
+#   research/approach_readout.sh [FROM [EPISODES]]   # env as research/sensor_dagger.sh, and CELL=1
 #
-# Round FROM's learner drives EPISODES approaches under $SENSOR (beta 0.5^(FROM+1), as round FROM+1's); round
-# FROM's readout is refitted 400 steps on rounds 0..FROM+1 and the approaches ("aim"): round FROM+1's readout
-# (`sensor_dagger.sh`) with the approaches added, on the same seeds, init and steps. The gate: both readouts and
-# round FROM's on 40 held-out approaches (the same learner, other seeds), then a 180-episode seen-kind cell.
+# Round FROM's learner drives EPISODES approaches under $SENSOR (beta 0.5^(FROM+1), as round FROM+1's);
+# round FROM's readout is refitted 400 steps on rounds 0..FROM+1 and the approaches ("aim"): round FROM+1's
+# readout (`sensor_dagger.sh`) with the approaches added, on the same seeds, init and steps. The gate: both
+# readouts and round FROM's on 40 held-out approaches (the same learner, other seeds); read it, then CELL=1
+# runs a 180-episode seen-kind cell under stereo.
 # Every stage is resumed (research/sensor_stages.sh).
 set -euo pipefail
 FROM=${1:-2}
@@ -19,7 +21,10 @@ source "$(dirname "$0")/sensor_stages.sh"
 recover_shipped
 stores=()
 for ((r = 0; r <= FROM + 1; r++)); do
-    [[ -f $D/round$r.zarr.done ]] || { echo "error: $D/round$r.zarr is incomplete: sensor_dagger.sh $((FROM + 1))" >&2; exit 2; }
+    if [[ ! -f $D/round$r.zarr.done ]]; then
+        echo "error: $D/round$r.zarr is incomplete: run research/sensor_dagger.sh $((FROM + 1))" >&2
+        exit 2
+    fi
     stores+=("$D/round$r.zarr")
 done
 beta=$(python -c "print(0.5 ** ($FROM + 1))")
@@ -31,5 +36,5 @@ for c in "c$FROM" "c$((FROM + 1))" caim; do
     [[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$D/$c/student.pt" \
         "$D/approach_heldout.zarr" --out "$out" > /dev/null
 done
-cell aim
-log "done: $D/caim"
+[[ ${CELL:-0} == 1 ]] && cell aim
+log "done: $D/caim (gate: $R/table2/low_hand/*_approach_heldout.json)"
