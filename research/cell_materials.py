@@ -20,9 +20,10 @@ from trainer.eval.stats import wilson_interval
 
 def by_material(cell: Path, params: StereoParams) -> dict:
     kinds, failed, policy = episodes(cell)
+    drawn = {s: episode_material(s, params) for s in kinds}
     rows = {}
     for material in MATERIAL_KINDS:
-        seeds = [s for s in kinds if episode_material(s, params) == material]
+        seeds = [s for s in kinds if drawn[s] == material]
         won = sum(s not in failed for s in seeds)
         rows[material] = {"grasped": won, "episodes": len(seeds),
                           "ci95": [round(x, 3) for x in wilson_interval(won, len(seeds))]}
