@@ -18,7 +18,7 @@ from trainer.dataset import DatasetError, DemoStore
 from trainer.sim.env import OBJECT_FROM_HAND, EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, HAND_PX, OBJECT_PX, OFFSET, SIZE, frame_labels
 from trainer.student import checkpoint
-from trainer.student.dagger import RoundSpec, chunks_ahead, collect_round
+from trainer.student.dagger import GLIMPSE_TOP_M, RoundSpec, chunks_ahead, collect_round
 from trainer.teacher.scripted import ReactiveExpert
 
 TINY = ["--width", "8", "--head-dims", "16", "32", "--state-features", "16", "--step-features", "16"]
@@ -115,6 +115,32 @@ def test_a_round_of_approaches_ends_each_episode_before_the_hand_is_low(tmp_path
     assert 0 < first_low < len(full) - 1  # the expert's hand went below 12 cm within the episode
     assert len(approach) == first_low
     np.testing.assert_array_equal(approach, full[:first_low])
+
+
+def test_a_glimpse_keeps_the_last_frames_before_a_drawn_height_rendered_as_the_full_run_renders_them(tmp_path):
+    """``RoundSpec.glimpse``: the episode ends once the grasp site is below a height drawn between
+    ``end_height_m`` and ``GLIMPSE_TOP_M``; only its last N frames are kept, rendered afterwards from physics
+    snapshots, and they equal the full run's frames and labels of those steps."""
+    config = EnvConfig(objects=("cube",), max_steps=60)
+    collect_round(tmp_path / "full.zarr", config, RoundSpec(horizon=0), episodes=1, seed=7)
+    collect_round(tmp_path / "glimpse.zarr", config, RoundSpec(horizon=0, end_height_m=0.12, glimpse=3),
+                  episodes=1, seed=7)
+    full, glimpse = (DemoStore.open(tmp_path / f"{n}.zarr").episode(0) for n in ("full", "glimpse"))
+    assert len(glimpse["labels"]) == 3
+    last = int(np.flatnonzero((full["labels"] == glimpse["labels"][-1]).all(axis=1))[0])
+    for key in ("labels", "depth", "state"):
+        np.testing.assert_array_equal(glimpse[key], full[key][last - 2:last + 1])
+    height = -full["labels"][:, OFFSET][:, 2]
+    assert height[last] >= 0.12 and height[last + 1] < GLIMPSE_TOP_M  # it stopped inside the band
+    assert not (glimpse["depth"] == 0).all()  # rendered, though the run itself rendered none
+
+
+def test_a_glimpse_refuses_a_driver_that_reads_depth_and_a_spec_without_its_end_height(tmp_path):
+    with pytest.raises(ValueError, match="end height"):
+        RoundSpec(horizon=0, glimpse=3)
+    spec = RoundSpec(learner="student:models/student.onnx", horizon=0, end_height_m=0.12, glimpse=3)
+    with pytest.raises(ValueError, match="must read no depth"):
+        collect_round(tmp_path / "s.zarr", EnvConfig(objects=("cube",)), spec, episodes=1, seed=7)
 
 
 def test_a_round_without_chunks_drives_the_same_states_and_labels_its_frames_alone(tmp_path):

@@ -11,14 +11,14 @@ the hand has stalled. Every episode is kept, failures included: their labels say
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from trainer.dataset import DemoStore, EpisodeRecord
-from trainer.policies import Observation, make_policy
+from trainer.policies import NEEDS_DEPTH, Observation, make_policy, parse
 from trainer.sim.env import HAND_POSITION, EnvConfig, GraspEnv
 from trainer.sim.labels import OFFSET, frame_labels
 from trainer.sim.rollout import Job, in_workers, observe, schedule, start_episode
@@ -44,10 +44,28 @@ class RoundSpec:
     frame is stored: a store of the approach alone, whose frames set where the hand aims. Under the stereo
     sensor the readout reads a hand low beside the object as on target, so the aim is fixed 12 cm up and more,
     and ~27 % of a learner episode's frames lie up there (``docs/table2.md``)."""
+    glimpse: int = 0
+    """0 keeps every frame. N > 0 (with ``end_height_m``): a glimpse of where the aim is set; the episode ends
+    once the grasp site is first below a height drawn per episode between ``end_height_m`` and
+    ``GLIMPSE_TOP_M``, and only its last N frames are kept, the only ones rendered (clean and through the
+    sensor): several times the scenes per hour of an approach, for drivers that read no depth (the expert,
+    ``reactive:B``). Under stereo the ceiling's readout reads scenes it trained on twice as well as new ones
+    (``docs/table2.md``): it needs more scenes, not more frames of each."""
     sensor: str = "clean"
     """What the learner sees (``trainer.sim.sensors``: ``ddg``, ``stereo`` ...); other than ``clean``, the
     store keeps its frames as ``data/depth_sensor`` beside the clean ones, and a fit reads them with
     ``--depth-source sensor``."""
+
+    def __post_init__(self) -> None:
+        if self.glimpse < 0:
+            raise ValueError(f"glimpse must be >= 0 frames, got {self.glimpse}")
+        if self.glimpse and not (self.end_height_m > 0 and self.horizon == 0):
+            raise ValueError("a glimpse needs an end height (--end-height-cm) and frames labelled alone "
+                             "(--no-chunks)")
+
+
+GLIMPSE_TOP_M = 0.30
+"""The highest a glimpse ends, grasp site over the object: the top of the heights where the aim is set."""
 
 
 def chunks_ahead(actions: np.ndarray, horizon: int) -> np.ndarray:
@@ -65,13 +83,19 @@ def labelled_episode(env: GraspEnv, expert: ReactiveExpert, learner, job: Job, s
     expert.reset(info)
     rng = np.random.default_rng([job.seed, 0xDA66])
     steps: dict[str, list] = {"depth": [], "seen": [], "state": [], "action": [], "labels": [], "chunk": []}
-    hands = []
+    hands, snapshots = [], []
+    stop_m = (np.random.default_rng([job.seed, 0x611]).uniform(spec.end_height_m, GLIMPSE_TOP_M)
+              if spec.glimpse else spec.end_height_m)
     while True:
         obs, labels = env.observation(), frame_labels(env)
-        if hands and -labels[OFFSET][2] < spec.end_height_m:
+        if hands and -labels[OFFSET][2] < stop_m:
             break
         steps["labels"].append(labels)
-        seen = info.get("depth") if sensor is None else observe(sensor, env, info.get("depth"), "none")
+        if spec.glimpse:  # rendered once the glimpse's last frames are known
+            snapshots = [*snapshots, env.world.snapshot()][-spec.glimpse:]
+            seen = None
+        else:
+            seen = info.get("depth") if sensor is None else observe(sensor, env, info.get("depth"), "none")
         steps["seen"].append(seen)
         if learner is None:
             action = np.asarray(expert.act(obs), np.float32)
@@ -90,6 +114,8 @@ def labelled_episode(env: GraspEnv, expert: ReactiveExpert, learner, job: Job, s
                    and np.linalg.norm(hands[-1] - hands[-spec.stall_steps]) < spec.stall_m)
         if terminated or truncated or stalled:
             break
+    if spec.glimpse:
+        steps = glimpsed(env, sensor, steps, snapshots)
     actions = np.stack(steps["action"])
     chunks = (np.stack(steps["chunk"]) if steps["chunk"]
               else chunks_ahead(actions, spec.horizon) if spec.horizon else None)
@@ -101,6 +127,18 @@ def labelled_episode(env: GraspEnv, expert: ReactiveExpert, learner, job: Job, s
                            world.episode.to_dict(), labels=np.stack(steps["labels"]), chunk=chunks,
                            depth_sensor=None if sensor is None else np.stack(steps["seen"]))
     return record, bool(info["success"])
+
+
+def glimpsed(env: GraspEnv, sensor: Sensor | None, steps: dict[str, list], snapshots: list) -> dict[str, list]:
+    """The last of an episode's ``steps``, one per physics snapshot kept, their frames rendered now."""
+    kept = {key: values[-len(snapshots):] for key, values in steps.items()}
+    kept["depth"], kept["seen"] = [], []
+    for snapshot in snapshots:
+        env.world.restore(snapshot)
+        depth = env.frame()
+        kept["depth"].append(depth)
+        kept["seen"].append(depth if sensor is None else observe(sensor, env, depth, "none"))
+    return kept
 
 
 _WORKER: dict = {}
@@ -122,10 +160,16 @@ def collect_round(path: Path, config: EnvConfig, spec: RoundSpec, *, episodes: i
     """Episodes ``seed``.. (kinds in turn) into the store at ``path``, resumed where it stopped; returns the
     store's tally."""
     make_sensor(spec.sensor)  # an unknown sensor fails here in one line, not in every worker
+    if spec.glimpse:
+        if spec.learner and NEEDS_DEPTH[parse(spec.learner)[0]]:
+            raise ValueError(f"a glimpse renders only the frames it keeps: its driver must read no depth, "
+                             f"not {spec.learner}")
+        config = replace(config, render_depth=False)  # the kept frames are rendered at the end
     store = DemoStore.create(path, spec=config.depth, action_scale=config.action_scale,
                              control_rate_hz=config.control_rate_hz, labels=True, chunk_horizon=spec.horizon,
                              sensor=None if spec.sensor == "clean" else spec.sensor,
                              attrs={"teacher": "reactive", "learner": spec.learner, "beta": spec.beta,
+                                    "end_height_m": spec.end_height_m, "glimpse": spec.glimpse,
                                     "seed": seed, "objects": list(config.objects)})
     kinds = config.objects
     jobs = schedule(kinds, seed, episodes, int(store.attrs["attempted"]))

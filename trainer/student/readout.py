@@ -202,6 +202,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--end-height-cm", type=float, default=0.0,
                    help="end each collected episode once the grasp site is first this low over the object "
                         "(0: run it to the end): a store of the approach alone, where the aim is set")
+    p.add_argument("--glimpse", type=int, default=0, metavar="N",
+                   help="with --end-height-cm and --no-chunks: end each episode at a height drawn between that "
+                        "and 30 cm and keep only its last N frames, the only ones rendered: many scenes of where "
+                        "the aim is set, fast, for a driver that reads no depth (the expert, reactive:B)")
     p.add_argument("--collect-only", action="store_true",
                    help="collect the episodes into --store and measure nothing (a store for `trainer student "
                         "refit`: measuring 30k frames takes minutes)")
@@ -226,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
             env = EnvConfig(objects=select_kinds(args.objects), depth=spec)
             labelling = RoundSpec(learner=args.learner, horizon=0 if args.no_chunks else RoundSpec.horizon,
                                   sensor=args.sensor or "clean", beta=args.beta,
-                                  end_height_m=args.end_height_cm / 100)
+                                  end_height_m=args.end_height_cm / 100, glimpse=args.glimpse)
             collect_round(args.store, env, labelling, episodes=args.episodes, seed=args.seed,
                           workers=args.workers)
         if args.collect_only:
