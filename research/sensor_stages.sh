@@ -21,16 +21,17 @@ recover_shipped() {
     [[ -f $K/head.pt ]] || python -m export.recover models/student.onnx --out "$K"
 }
 
-# collect STORE EPISODES SEED [DRIVER BETA [END_CM]]: a labelled store of frames under $SENSOR, marked done when
-# complete; DRIVER is a policy spec (student:ONNX, reactive:BIAS_CM), else the expert drives; with END_CM each
-# episode ends once the grasp site is that low over the object (the approach alone).
+# collect STORE EPISODES SEED [DRIVER BETA [END_CM [GLIMPSE]]]: a labelled store of frames under $SENSOR, marked
+# done when complete; DRIVER is a policy spec (student:ONNX, reactive:BIAS_CM), else the expert drives; with END_CM
+# each episode ends once the grasp site is that low over the object (the approach alone); with GLIMPSE frames,
+# at a height drawn between END_CM and 30 cm, keeping only its last GLIMPSE frames.
 collect() {
-    local store=$1 episodes=$2 seed=$3 driver=${4:-} beta=${5:-} end_cm=${6:-0}
+    local store=$1 episodes=$2 seed=$3 driver=${4:-} beta=${5:-} end_cm=${6:-0} glimpse=${7:-0}
     [[ -f $store.done ]] && return
     log "collect $store ($episodes episodes${driver:+, $driver driving, beta $beta})"
     python -m trainer student readout "$K/student.pt" --store "$store" --episodes "$episodes" --no-chunks \
         --sensor "$SENSOR" --objects "$TRAIN_KINDS" --seed "$seed" --workers "$WORKERS" --collect-only \
-        --end-height-cm "$end_cm" ${driver:+--learner $driver --beta $beta}
+        --end-height-cm "$end_cm" --glimpse "$glimpse" ${driver:+--learner $driver --beta $beta}
     touch "$store.done"
 }
 
