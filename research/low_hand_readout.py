@@ -4,11 +4,12 @@ of the true horizontal offset the readout reads (the slope of read on true: 1 se
 whatever it is); at each episode's first close, how far off the hand closed against what the readout read just
 before; and whether the object's place averaged while the hand was high (a latch) would read the close better.
 
-    PYTHONPATH=. python research/low_hand_readout.py CKPT STORE [--also CKPT ...] [--out J]
+    PYTHONPATH=. python research/low_hand_readout.py CKPT STORE [--also CKPT ...] [--versus CKPT] [--out J]
 
 CKPT: a depth student or composed checkpoint (``student.pt``); STORE: a store with its frames' labels
 (``trainer student readout --store``). Frames are read as ``trainer student readout`` reads them. With
-``--also``, the readings of every checkpoint are averaged, as an exported pair of readouts averages them.
+``--also``, the readings of every checkpoint are averaged, as an exported pair of readouts averages them; with
+``--versus``, another checkpoint's error is compared with theirs episode by episode.
 """
 
 from __future__ import annotations
@@ -41,11 +42,11 @@ def slopes(read: np.ndarray, true: np.ndarray, opened: np.ndarray, ends: np.ndar
     """Per height band: the read offset's slope on the true one in x and y, the horizontal error (cm), and the
     share of the error's variance that is one constant per episode (1: averaging an episode's frames cannot
     help; 0: every frame errs afresh)."""
-    above, apart = -true[:, 2] * 100, np.linalg.norm(true[:, :2], axis=1) * 100
+    apart = np.linalg.norm(true[:, :2], axis=1) * 100
     episode = np.searchsorted(ends, np.arange(len(read)), side="right")
     rows = []
     for lo, hi in BANDS_CM:
-        m = (above >= lo) & (above < hi) & (apart < BESIDE_CM) & opened
+        m = in_band(true, opened, lo, hi)
         if m.sum() < 20:
             continue
         error = np.linalg.norm((read - true)[m, :2], axis=1) * 100
@@ -56,6 +57,34 @@ def slopes(read: np.ndarray, true: np.ndarray, opened: np.ndarray, ends: np.ndar
                      "error_xy_cm_median": _r(np.median(error)),
                      "error_xy_cm_p90": _r(np.percentile(error, 90)),
                      "episode_share": _r(episode_share((read - true)[m, :2], episode[m]))})
+    return rows
+
+
+def in_band(true: np.ndarray, opened: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """The frames judged in the band ``lo``-``hi`` cm over the object: the hand open and near it."""
+    above, apart = -true[:, 2] * 100, np.linalg.norm(true[:, :2], axis=1) * 100
+    return (above >= lo) & (above < hi) & (apart < BESIDE_CM) & opened
+
+
+def versus(read: np.ndarray, other: np.ndarray, true: np.ndarray, opened: np.ndarray, ends: np.ndarray,
+           seed: int = 0) -> list[dict]:
+    """Per height band, paired by episode: each episode's mean horizontal error (cm) read by ``other`` minus
+    read by ``read``, the mean over episodes with a 95 % bootstrap interval, and the episodes each reads
+    better.
+    The error is mostly one constant per episode, so episodes, not frames, are the samples."""
+    episode = np.searchsorted(ends, np.arange(len(read)), side="right")
+    rng, rows = np.random.default_rng(seed), []
+    for lo, hi in BANDS_CM:
+        m = in_band(true, opened, lo, hi)
+        eps = np.unique(episode[m])
+        if len(eps) < 10:
+            continue
+        err = [np.linalg.norm((r - true)[m, :2], axis=1) * 100 for r in (read, other)]
+        diff = np.array([err[1][episode[m] == e].mean() - err[0][episode[m] == e].mean() for e in eps])
+        boot = rng.choice(diff, (2000, len(diff))).mean(axis=1)
+        rows.append({"above_cm": [lo, hi], "episodes": len(eps), "diff_cm_mean": _r(diff.mean()),
+                     "diff_cm_ci95": [_r(np.percentile(boot, 2.5)), _r(np.percentile(boot, 97.5))],
+                     "other_better": int((diff < 0).sum()), "other_worse": int((diff > 0).sum())})
     return rows
 
 
@@ -132,6 +161,8 @@ def main() -> None:
     p.add_argument("store", type=Path)
     p.add_argument("--also", type=Path, nargs="+", default=[],
                    help="more checkpoints whose readings are averaged with CKPT's")
+    p.add_argument("--versus", type=Path,
+                   help="another checkpoint, compared with CKPT (and --also) episode by episode per band")
     p.add_argument("--depth-source", choices=sorted(STORED), default="sensor")
     p.add_argument("--out", type=Path)
     args = p.parse_args()
@@ -147,6 +178,10 @@ def main() -> None:
     result = {"checkpoint": str(args.checkpoint), "also": [str(c) for c in args.also],
               "store": str(args.store), "frames": len(read), "by_height": slopes(read, true, opened, ends),
               "at_close": at_close(read, true, opened, ends), "latch": latch(read, true, hand, opened, ends)}
+    if args.versus:
+        other = readout_probes.read(checkpoint.load(args.versus).policy(), steps)[:, OFFSET]
+        result["versus"] = {"checkpoint": str(args.versus),
+                            "by_height": versus(read, other, true, opened, ends)}
     print(json.dumps(result, indent=1))
     if args.out:
         args.out.write_text(json.dumps(result, indent=1))
