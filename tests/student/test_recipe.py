@@ -117,7 +117,7 @@ def test_a_round_of_approaches_ends_each_episode_before_the_hand_is_low(tmp_path
     np.testing.assert_array_equal(approach, full[:first_low])
 
 
-def test_a_glimpse_keeps_the_last_frames_before_a_drawn_height_rendered_as_the_full_run_renders_them(tmp_path):
+def test_a_glimpse_keeps_the_last_frames_before_a_drawn_height_as_the_full_run_renders_them(tmp_path):
     """``RoundSpec.glimpse``: the episode ends once the grasp site is below a height drawn between
     ``end_height_m`` and ``GLIMPSE_TOP_M``; only its last N frames are kept, rendered afterwards from physics
     snapshots, and they equal the full run's frames and labels of those steps."""

@@ -48,9 +48,8 @@ class RoundSpec:
     """0 keeps every frame. N > 0 (with ``end_height_m``): a glimpse of where the aim is set; the episode ends
     once the grasp site is first below a height drawn per episode between ``end_height_m`` and
     ``GLIMPSE_TOP_M``, and only its last N frames are kept, the only ones rendered (clean and through the
-    sensor): several times the scenes per hour of an approach, for drivers that read no depth (the expert,
-    ``reactive:B``). Under stereo the ceiling's readout reads scenes it trained on twice as well as new ones
-    (``docs/table2.md``): it needs more scenes, not more frames of each."""
+    sensor): ~5x the scenes per hour of an approach, for drivers that read no depth (the expert,
+    ``reactive:B``, ``oracle:CKPT@B``). What they teach a readout under stereo: ``docs/table2.md``."""
     sensor: str = "clean"
     """What the learner sees (``trainer.sim.sensors``: ``ddg``, ``stereo`` ...); other than ``clean``, the
     store keeps its frames as ``data/depth_sensor`` beside the clean ones, and a fit reads them with
@@ -129,7 +128,8 @@ def labelled_episode(env: GraspEnv, expert: ReactiveExpert, learner, job: Job, s
     return record, bool(info["success"])
 
 
-def glimpsed(env: GraspEnv, sensor: Sensor | None, steps: dict[str, list], snapshots: list) -> dict[str, list]:
+def glimpsed(env: GraspEnv, sensor: Sensor | None, steps: dict[str, list], snapshots: list
+             ) -> dict[str, list]:
     """The last of an episode's ``steps``, one per physics snapshot kept, their frames rendered now."""
     kept = {key: values[-len(snapshots):] for key, values in steps.items()}
     kept["depth"], kept["seen"] = [], []

@@ -203,9 +203,10 @@ def main(argv: list[str] | None = None) -> int:
                    help="end each collected episode once the grasp site is first this low over the object "
                         "(0: run it to the end): a store of the approach alone, where the aim is set")
     p.add_argument("--glimpse", type=int, default=0, metavar="N",
-                   help="with --end-height-cm and --no-chunks: end each episode at a height drawn between that "
-                        "and 30 cm and keep only its last N frames, the only ones rendered: many scenes of where "
-                        "the aim is set, fast, for a driver that reads no depth (the expert, reactive:B)")
+                   help="with --end-height-cm and --no-chunks: end each episode at a height drawn between "
+                        "that and 30 cm and keep only its last N frames, the only ones rendered: many scenes "
+                        "of where the aim is set, fast, for a driver that reads no depth (the expert, "
+                        "reactive:B, oracle:CKPT@B)")
     p.add_argument("--collect-only", action="store_true",
                    help="collect the episodes into --store and measure nothing (a store for `trainer student "
                         "refit`: measuring 30k frames takes minutes)")
