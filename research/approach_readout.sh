@@ -21,11 +21,7 @@ source "$(dirname "$0")/sensor_stages.sh"
 recover_shipped
 stores=()
 for ((r = 0; r <= FROM + 1; r++)); do
-    if [[ ! -f $D/round$r.zarr.done ]]; then
-        echo "error: $D/round$r.zarr is incomplete: run research/sensor_dagger.sh $((FROM + 1))" >&2
-        exit 2
-    fi
-    stores+=("$D/round$r.zarr")
+    need "$D/round$r.zarr" "research/sensor_dagger.sh $((FROM + 1))"
 done
 beta=$(python -c "print(0.5 ** ($FROM + 1))")
 collect "$D/approach.zarr" "$EPISODES" 58000 "student:$D/c$FROM/student.onnx" "$beta" 12

@@ -20,11 +20,7 @@ source "$(dirname "$0")/sensor_stages.sh"
 recover_shipped
 stores=()
 for s in round0 round1 round2 round3 approach; do
-    if [[ ! -f $D/$s.zarr.done ]]; then
-        echo "error: $D/$s.zarr is incomplete: run research/approach_readout.sh 2" >&2
-        exit 2
-    fi
-    stores+=("$D/$s.zarr")
+    need "$D/$s.zarr" "research/approach_readout.sh 2"
 done
 seed=60000
 for bias in 0.0 1.0 2.0; do

@@ -132,8 +132,8 @@ def main() -> None:
     p.add_argument("--out", type=Path)
     args = p.parse_args()
     torch.set_num_threads(1)
-    spec = checkpoint.load(args.checkpoint).info.depth_spec
-    net = checkpoint.load(args.checkpoint).policy()
+    ckpt = checkpoint.load(args.checkpoint)
+    spec, net = ckpt.info.depth_spec, ckpt.policy()
     env, sensor = GraspEnv(EnvConfig(objects=select_kinds(args.objects), depth=spec)), make_sensor("stereo")
     rows = []
     for job in tqdm(schedule(env.config.objects, args.seed, args.episodes), desc="episodes"):

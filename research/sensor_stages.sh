@@ -21,6 +21,16 @@ recover_shipped() {
     [[ -f $K/head.pt ]] || python -m export.recover models/student.onnx --out "$K"
 }
 
+# need STORE MAKER: STORE appended to the array `stores` if it is complete, else exit 2 naming the command MAKER
+# that makes it.
+need() {
+    if [[ ! -f $1.done ]]; then
+        echo "error: $1 is incomplete: run $2" >&2
+        exit 2
+    fi
+    stores+=("$1")
+}
+
 # collect STORE EPISODES SEED [DRIVER BETA [END_CM [GLIMPSE]]]: a labelled store of frames under $SENSOR, marked
 # done when complete; DRIVER is a policy spec (student:ONNX, reactive:BIAS_CM), else the expert drives; with END_CM
 # each episode ends once the grasp site is that low over the object (the approach alone); with GLIMPSE frames,
