@@ -19,6 +19,16 @@ along the line of sight and across it, per kind.
     PYTHONPATH=. python research/patch_ceiling.py fit --train DIR ... --test NAME=DIR ... --variant native|low
     PYTHONPATH=. python research/patch_ceiling.py fit --test NAME=DIR ... --variant readout --ckpt CKPT
         # a depth student's own readout on the same frames: the bar the CNN is read against
+
+Under the stereo sensor (issue 45), where the aim is set: ``glimpse`` stores 3 frames of a scene with the hand
+12-30 cm over the object (``trainer student readout --glimpse``'s episodes, driven by a policy that reads no
+depth), each with both patches of the sensor's own stream; ``fit`` with several variants compares them on the
+same held-out frames, paired by episode per height band (``research/low_hand_readout.py``'s ``versus``):
+
+    PYTHONPATH=. python research/patch_ceiling.py glimpse OUT --driver reactive:1.0 --sensor stereo \
+        --objects seen,squares,shapes --episodes 500 --seed 80000 [--workers 2]
+    PYTHONPATH=. python research/patch_ceiling.py fit --train DIR ... --test NAME=DIR ... \
+        --variant readout native low --ckpt CKPT
 """
 
 from __future__ import annotations
@@ -26,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -34,15 +45,18 @@ from torch import nn
 from tqdm import tqdm
 
 from hil_sim.objects import select_kinds
+from research.low_hand_readout import BANDS_CM, OPEN_M, in_band, versus
 from runtime.preprocess import DepthSpec, crop_resize, normalise
 from trainer.dataset import DEPTH_SCALE
-from trainer.policies import Observation, depth_spec, make_policy
+from trainer.policies import NEEDS_DEPTH, Observation, depth_spec, make_policy, parse
 from trainer.sim.env import HAND_POSITION, EnvConfig, GraspEnv
 from trainer.sim.labels import OFFSET, SIZE, frame_labels
 from trainer.sim.rollout import in_workers, schedule, start_episode
+from trainer.sim.sensors import make_sensor
 from trainer.student import checkpoint
-from trainer.student.dagger import RoundSpec
+from trainer.student.dagger import RoundSpec, labelled_episode
 from trainer.student.model import hand_pose
+from trainer.teacher.scripted import ReactiveExpert
 
 PATCH = 96
 """Native stream pixels on a side of the patch (~21 cm at the object's ~0.93 m)."""
@@ -50,6 +64,9 @@ CENTRE_NOISE_PX = 2.0
 NEAR_M = 0.05
 STALL = RoundSpec()
 """A learner episode ends once the hand stalls, as a DAgger round's does."""
+GLIMPSE = RoundSpec(horizon=0, end_height_m=0.12, glimpse=3)
+"""A scene's last 3 frames, the hand stopped 12-30 cm over the object (``trainer student readout
+--glimpse``)."""
 
 
 def window_indices(n_stream: int, start: int, crop: int, out: int) -> np.ndarray:
@@ -128,6 +145,60 @@ def collect(out: Path, kinds: tuple[str, ...], episodes: int, seed: int, learner
         np.savez_compressed(out / f"{ep['seed']}.npz", **ep)
         wins += ep["success"]
     print(f"{out}: {wins} of {len(jobs)} new episodes grasped")
+
+
+class StreamTap:
+    """A scene sensor that keeps, beside each stream it renders, the object's pixel and the camera's line of
+    sight to it, so the patches are cut from the very frame the policy image was made of."""
+
+    def __init__(self, sensor) -> None:
+        self.sensor, self.kept = sensor, []
+
+    def reset(self, world, seed: int) -> None:
+        self.kept.clear()
+        self.sensor.reset(world, seed)
+
+    def stream(self, world) -> np.ndarray:
+        frame = self.sensor.stream(world)
+        obj, _ = world.object_pose()
+        to_object = obj - world.camera_extrinsics()[:3, 3]
+        self.kept.append((frame, stream_pixel(world, obj), to_object / np.linalg.norm(to_object)))
+        return frame
+
+
+def _init_glimpse(config: EnvConfig, spec: RoundSpec, sensor: str) -> None:
+    _WORKER.update(env=GraspEnv(config), expert=ReactiveExpert(), spec=spec,
+                   learner=make_policy(spec.learner), tap=StreamTap(make_sensor(sensor)))
+
+
+def _glimpse(job) -> dict:
+    w = _WORKER
+    env, tap = w["env"], w["tap"]
+    record, success = labelled_episode(env, w["expert"], w["learner"], job, w["spec"], tap)
+    rng = np.random.default_rng([job.seed, 0x9A7C])
+    centres = [pixel + rng.normal(0, CENTRE_NOISE_PX, 2) for _, pixel, _ in tap.kept]
+    window = env.world.episode.crop_window
+    cut = [patches(frame, env.spec, window, c) for (frame, _, _), c in zip(tap.kept, centres, strict=True)]
+    return {"native": np.stack([n for n, _ in cut]), "low": np.stack([lo for _, lo in cut]),
+            "centre": np.stack(centres), "depth": record.depth_sensor, "state": record.state,
+            "labels": record.labels, "sight": np.stack([s for _, _, s in tap.kept]), "kind": job.kind,
+            "seed": job.seed, "success": success}
+
+
+def glimpse(out: Path, kinds: tuple[str, ...], episodes: int, seed: int, driver: str, sensor: str,
+            workers: int) -> None:
+    """Glimpses of ``episodes`` scenes under ``sensor``, one .npz each, resumed where it stopped."""
+    spec = replace(GLIMPSE, learner=driver, sensor=sensor)
+    if NEEDS_DEPTH[parse(driver)[0]]:
+        raise SystemExit(f"a glimpse renders only the frames it keeps: --driver must read no depth, "
+                         f"not {driver}")
+    make_sensor(sensor)  # an unknown sensor fails here in one line, not in every worker
+    out.mkdir(parents=True, exist_ok=True)
+    jobs = [j for j in schedule(kinds, seed, episodes) if not (out / f"{j.seed}.npz").exists()]
+    config = EnvConfig(objects=kinds, depth=depth_spec("student:models/student.onnx"), render_depth=False)
+    for ep in tqdm(in_workers(_init_glimpse, (config, spec, sensor), _glimpse, jobs, workers, _WORKER),
+                   total=len(jobs), desc=f"glimpse {out.name}", unit="scene"):
+        np.savez_compressed(out / f"{ep['seed']}.npz", **ep)
 
 
 def load(dirs: list[str]) -> dict:
@@ -250,6 +321,34 @@ def summarise(diff: np.ndarray, data: dict) -> dict:
     return {"all": one(np.ones(len(diff), bool))} | {k: one(data["kind"] == k) for k in kinds}
 
 
+def _judged(diff: np.ndarray, data: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The read and true offsets (m), whether the hand is open, and the episodes' ends, as
+    ``research/low_hand_readout.py`` judges a store's frames."""
+    true = data["labels"][:, OFFSET]
+    ends = np.cumsum(np.bincount(data["episode"]))
+    return true + diff[:, :3] / 100, true, data["state"][:, 7] >= OPEN_M, ends
+
+
+def by_height(diff: np.ndarray, data: dict) -> list[dict]:
+    """Per band of the hand's height over the object: the horizontal error median / p90 (cm)."""
+    read, true, opened, _ = _judged(diff, data)
+    rows = []
+    for lo, hi in BANDS_CM:
+        m = in_band(true, opened, lo, hi)
+        if m.sum() >= 20:
+            error = np.linalg.norm((read - true)[m, :2], axis=1) * 100
+            rows.append({"above_cm": [lo, hi], "frames": int(m.sum()),
+                         "error_xy_cm_median": _r(np.median(error)),
+                         "error_xy_cm_p90": _r(np.percentile(error, 90))})
+    return rows
+
+
+def paired(first: np.ndarray, other: np.ndarray, data: dict) -> list[dict]:
+    """``other``'s per-episode error against ``first``'s by height band (``low_hand_readout.versus``)."""
+    read, true, opened, ends = _judged(first, data)
+    return versus(read, _judged(other, data)[0], true, opened, ends)
+
+
 def _r(x: float) -> float:
     return round(float(x), 3)
 
@@ -264,11 +363,21 @@ def main() -> None:
     c.add_argument("--seed", type=int, default=600000)
     c.add_argument("--learner", default="student:models/student.onnx")
     c.add_argument("--workers", type=int, default=2)
+    g = sub.add_parser("glimpse", help="stereo glimpses (3 frames, hand 12-30 cm up) with both patches")
+    g.add_argument("out", type=Path)
+    g.add_argument("--driver", default="reactive:1.0",
+                   help="a policy that reads no depth (expert, reactive:B, oracle:CKPT@B)")
+    g.add_argument("--sensor", default="stereo")
+    g.add_argument("--objects", default="seen,squares,shapes")
+    g.add_argument("--episodes", type=int, default=500)
+    g.add_argument("--seed", type=int, default=80000)
+    g.add_argument("--workers", type=int, default=2)
     f = sub.add_parser("fit", help="the CNN on --train, its errors (cm) on each --test")
     f.add_argument("--train", nargs="+", help="folders to fit on (not for --variant readout)")
     f.add_argument("--test", nargs="+", required=True, help="NAME=DIR")
-    f.add_argument("--variant", choices=("native", "low", "readout"), required=True,
-                   help="the CNN on native or policy pixels; readout: --ckpt's own readout, no fit")
+    f.add_argument("--variant", nargs="+", choices=("native", "low", "readout"), required=True,
+                   help="the CNN on native or policy pixels; readout: --ckpt's own readout, no fit; several: "
+                   "each compared with the first, paired by episode")
     f.add_argument("--ckpt", type=Path, help="a depth student checkpoint (--variant readout)")
     f.add_argument("--steps", type=int, default=4000)
     f.add_argument("--batch", type=int, default=64)
@@ -278,18 +387,33 @@ def main() -> None:
     if args.cmd == "collect":
         collect(args.out, select_kinds(args.objects), args.episodes, args.seed, args.learner, args.workers)
         return
+    if args.cmd == "glimpse":
+        glimpse(args.out, select_kinds(args.objects), args.episodes, args.seed, args.driver, args.sensor,
+                args.workers)
+        return
+    if "readout" in args.variant and not args.ckpt:
+        p.error("--variant readout needs --ckpt")
+    if set(args.variant) - {"readout"} and not args.train:
+        p.error("--variant native / low need --train")
     torch.set_num_threads(1)
     tests = [(name, load([d])) for name, d in (t.split("=", 1) for t in args.test)]
-    if args.variant == "readout":
-        result = {"variant": f"readout {args.ckpt}"}
-        result |= {name: summarise(readout_errors(args.ckpt, data), data) for name, data in tests}
-    else:
+    train = load(args.train) if args.train else None
+    result: dict = {"variants": args.variant, "ckpt": str(args.ckpt), "steps": args.steps,
+                    "batch": args.batch}
+    errors = {}
+    for variant in args.variant:
+        if variant == "readout":
+            errors[variant] = [readout_errors(args.ckpt, data) for _, data in tests]
+            continue
         start = time.time()
-        net, s_mean, s_std = fit(load(args.train), args.variant, args.steps, args.batch, args.seed)
-        result = {"variant": args.variant, "steps": args.steps, "batch": args.batch,
-                  "fit_s": round(time.time() - start)}
-        result |= {name: summarise(predict(net, s_mean, s_std, data, args.variant), data)
-                   for name, data in tests}
+        net, s_mean, s_std = fit(train, variant, args.steps, args.batch, args.seed)
+        result[f"fit_s_{variant}"] = round(time.time() - start)
+        errors[variant] = [predict(net, s_mean, s_std, data, variant) for _, data in tests]
+    for i, (name, data) in enumerate(tests):
+        result[name] = {v: summarise(errors[v][i], data) | {"by_height": by_height(errors[v][i], data)}
+                        for v in args.variant}
+        result[name]["versus"] = {v: paired(errors[args.variant[0]][i], errors[v][i], data)
+                                  for v in args.variant[1:]}
     text = json.dumps(result, indent=1)
     print(text)
     if args.out:
