@@ -27,6 +27,7 @@ same held-out frames, paired by episode per height band (``research/low_hand_rea
 
     PYTHONPATH=. python research/patch_ceiling.py glimpse OUT --driver reactive:1.0 --sensor stereo \
         --objects seen,squares,shapes --episodes 500 --seed 80000 [--workers 2]
+        # --approach --driver student:ONNX --beta B: a learner's whole approaches (the gate's states)
     PYTHONPATH=. python research/patch_ceiling.py fit --train DIR ... --test NAME=DIR ... \
         --variant readout native low --ckpt CKPT
 """
@@ -67,6 +68,9 @@ STALL = RoundSpec()
 GLIMPSE = RoundSpec(horizon=0, end_height_m=0.12, glimpse=3)
 """A scene's last 3 frames, the hand stopped 12-30 cm over the object (``trainer student readout
 --glimpse``)."""
+APPROACH = RoundSpec(horizon=0, end_height_m=0.12)
+"""Every frame of an approach that ends 12 cm over the object (``trainer student readout
+--end-height-cm 12``)."""
 
 
 def window_indices(n_stream: int, start: int, crop: int, out: int) -> np.ndarray:
@@ -175,6 +179,7 @@ def _glimpse(job) -> dict:
     w = _WORKER
     env, tap = w["env"], w["tap"]
     record, success = labelled_episode(env, w["expert"], w["learner"], job, w["spec"], tap)
+    assert len(tap.kept) == len(record.state), "a stream rendered that the record does not keep"
     rng = np.random.default_rng([job.seed, 0x9A7C])
     centres = [pixel + rng.normal(0, CENTRE_NOISE_PX, 2) for _, pixel, _ in tap.kept]
     window = env.world.episode.crop_window
@@ -186,10 +191,11 @@ def _glimpse(job) -> dict:
 
 
 def glimpse(out: Path, kinds: tuple[str, ...], episodes: int, seed: int, driver: str, sensor: str,
-            workers: int) -> None:
-    """Glimpses of ``episodes`` scenes under ``sensor``, one .npz each, resumed where it stopped."""
-    spec = replace(GLIMPSE, learner=driver, sensor=sensor)
-    if NEEDS_DEPTH[parse(driver)[0]]:
+            workers: int, beta: float = 0.0, approach: bool = False) -> None:
+    """Glimpses (or whole approaches) of ``episodes`` scenes under ``sensor``, one .npz each, resumed where it
+    stopped."""
+    spec = replace(APPROACH if approach else GLIMPSE, learner=driver, sensor=sensor, beta=beta)
+    if not approach and NEEDS_DEPTH[parse(driver)[0]]:
         raise SystemExit(f"a glimpse renders only the frames it keeps: --driver must read no depth, "
                          f"not {driver}")
     make_sensor(sensor)  # an unknown sensor fails here in one line, not in every worker
@@ -363,7 +369,8 @@ def main() -> None:
     c.add_argument("--seed", type=int, default=600000)
     c.add_argument("--learner", default="student:models/student.onnx")
     c.add_argument("--workers", type=int, default=2)
-    g = sub.add_parser("glimpse", help="stereo glimpses (3 frames, hand 12-30 cm up) with both patches")
+    g = sub.add_parser("glimpse", help="stereo glimpses (3 frames, hand 12-30 cm up) with both patches, or "
+                       "whole approaches")
     g.add_argument("out", type=Path)
     g.add_argument("--driver", default="reactive:1.0",
                    help="a policy that reads no depth (expert, reactive:B, oracle:CKPT@B)")
@@ -372,6 +379,9 @@ def main() -> None:
     g.add_argument("--episodes", type=int, default=500)
     g.add_argument("--seed", type=int, default=80000)
     g.add_argument("--workers", type=int, default=2)
+    g.add_argument("--beta", type=float, default=0.0, help="share of steps the expert drives")
+    g.add_argument("--approach", action="store_true",
+                   help="keep every frame of an approach ending 12 cm up instead (any driver: a learner too)")
     f = sub.add_parser("fit", help="the CNN on --train, its errors (cm) on each --test")
     f.add_argument("--train", nargs="+", help="folders to fit on (not for --variant readout)")
     f.add_argument("--test", nargs="+", required=True, help="NAME=DIR")
@@ -389,7 +399,7 @@ def main() -> None:
         return
     if args.cmd == "glimpse":
         glimpse(args.out, select_kinds(args.objects), args.episodes, args.seed, args.driver, args.sensor,
-                args.workers)
+                args.workers, args.beta, args.approach)
         return
     if "readout" in args.variant and not args.ckpt:
         p.error("--variant readout needs --ckpt")
