@@ -2,7 +2,8 @@
 frames (a learner's own states, as a DAgger round stores them): by the hand's height over the object, how much
 of the true horizontal offset the readout reads (the slope of read on true: 1 sees it, 0 reads "on target"
 whatever it is); at each episode's first close, how far off the hand closed against what the readout read just
-before; and whether the object's place averaged while the hand was high (a latch) would read the close better.
+before; whether the object's place averaged while the hand was high (a latch) would read the close better; and
+how much of each episode's error where the aim is set the camera's pose, drawn per episode, explains.
 
     PYTHONPATH=. python research/low_hand_readout.py CKPT STORE [--also CKPT ...] [--versus CKPT] [--out J]
 
@@ -20,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 
 from research import readout_probes
 from trainer.dataset import DemoStore
@@ -145,6 +147,26 @@ def latch(read: np.ndarray, true: np.ndarray, hand: np.ndarray, opened: np.ndarr
             "latched_better_share": _r(np.mean(latched < per_frame))}
 
 
+def camera_pose(read: np.ndarray, true: np.ndarray, opened: np.ndarray, ends: np.ndarray,
+                extrinsics: np.ndarray, band: tuple[float, float] = (12, 30)) -> dict:
+    """How much of each episode's mean horizontal error in ``band`` (cm over the object) a linear map of its
+    camera's deviation (position, cm; rotation vector, degrees; from the store's mean pose) predicts for an
+    episode left out: R^2 in x and y (0: none of it; the world draws the camera +-2 cm, +-2 degrees)."""
+    episode = np.searchsorted(ends, np.arange(len(read)), side="right")
+    m = in_band(true, opened, *band)
+    eps = np.unique(episode[m])
+    error = np.stack([(read - true)[m & (episode == e), :2].mean(0) for e in eps]) * 100
+    u, _, vt = np.linalg.svd(extrinsics[:, :3, :3].mean(0))
+    rot = Rotation.from_matrix(np.einsum("ji,ejk->eik", u @ vt, extrinsics[eps, :3, :3])).as_rotvec()
+    pos = extrinsics[eps, :3, 3] - extrinsics[:, :3, 3].mean(0)
+    x = np.c_[np.ones(len(eps)), pos * 100, np.degrees(rot)]
+    predicted = np.stack([x[i] @ np.linalg.lstsq(np.delete(x, i, 0), np.delete(error, i, 0), rcond=None)[0]
+                          for i in range(len(eps))])
+    r2 = 1 - ((error - predicted) ** 2).sum(0) / ((error - error.mean(0)) ** 2).sum(0)
+    return {"above_cm": list(band), "episodes": len(eps), "r2_left_out_x": _r(r2[0]),
+            "r2_left_out_y": _r(r2[1])}
+
+
 def spans(ends: np.ndarray) -> list[tuple[int, int]]:
     """Each episode's (first, past-last) frame from the store's episode ends."""
     starts = np.concatenate([[0], ends[:-1]])
@@ -174,10 +196,13 @@ def main() -> None:
     true = steps.labels_np[:, :READOUT][:, OFFSET]
     state = steps.state_np
     hand = hand_pose(torch.from_numpy(state.astype(np.float32))).numpy()[:, :3]
-    opened, ends = state[:, 7] >= OPEN_M, DemoStore.open(args.store).episode_ends
+    store = DemoStore.open(args.store)
+    opened, ends = state[:, 7] >= OPEN_M, store.episode_ends
     result = {"checkpoint": str(args.checkpoint), "also": [str(c) for c in args.also],
               "store": str(args.store), "frames": len(read), "by_height": slopes(read, true, opened, ends),
-              "at_close": at_close(read, true, opened, ends), "latch": latch(read, true, hand, opened, ends)}
+              "at_close": at_close(read, true, opened, ends), "latch": latch(read, true, hand, opened, ends),
+              "camera_pose": camera_pose(read, true, opened, ends,
+                                         np.asarray(store.root["meta/camera_extrinsics"]))}
     if args.versus:
         other = readout_probes.read(checkpoint.load(args.versus).policy(), steps)[:, OFFSET]
         result["versus"] = {"checkpoint": str(args.versus),
