@@ -53,6 +53,10 @@ class DistillConfig:
     ``docs/history.md``, 2026-11-27), which closes the fingers beside the object; the world forgives errors
     far from it. Weight 1: 74.2 % of 360 seen-kind episodes against 68.6 % without (no interval cleared)."""
     keypoint_loss: float = 10.0
+    teacher_loss: float = 0.0
+    """Weight of the feature teacher's term (``FeatureTeacher``, ``trainer student refit --teacher``): the
+    mean squared gap, in the teacher's standard deviations, between the readout's features of the fitted
+    frames and the teacher's of the clean frames of the same steps."""
     """Weight of the supervised keypoints' squared error in [-1, 1] image units (a pixel is ~0.02)."""
     max_grad_norm: float = 1.0
     """Gradients are scaled down to this total norm before each step, so that one bad batch cannot throw the
@@ -89,7 +93,7 @@ class DistillConfig:
     def __post_init__(self) -> None:
         if self.precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {self.precision!r}")
-        for name in ("shift_px", "near_loss"):
+        for name in ("shift_px", "near_loss", "teacher_loss"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         for name in ("steps", "batch", "ckpt_every"):
@@ -126,15 +130,38 @@ def warn_slow_bf16(cfg: DistillConfig, dev: torch.device) -> None:
               file=sys.stderr)
 
 
-def losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Generator,
-           cfg: DistillConfig) -> tuple[torch.Tensor, dict[str, float]]:
+class FeatureTeacher:
+    """A depth student that reads the clean frames, whose readout features (``Perception``'s) the fitted
+    readout's features of another source's frames of the same steps are pulled toward: cross-modal
+    distillation. The features carry the whole scene as the teacher reads it, not just the 12 facts a label
+    gives, so a readout of a sensor's depth gets a dense target per frame on the paired frames a round
+    stores."""
+
+    SCALE_STEPS = 512
+    """Steps (drawn with a fixed seed) over which each feature's standard deviation, its unit, is taken."""
+
+    def __init__(self, net: PerceptionStudent, steps: LabelledSteps) -> None:
+        self.net = net.eval().requires_grad_(False)
+        index = torch.randint(0, len(steps), (self.SCALE_STEPS,), generator=torch.Generator().manual_seed(0))
+        self.scale = self.features(steps.batch(index)).std(dim=0).clamp_min(1e-3)
+
+    def features(self, batch: StepBatch) -> torch.Tensor:
+        with torch.no_grad():
+            return self.net.perceive(batch.teacher_depth, batch.state)[0].float()
+
+    def loss(self, features: torch.Tensor, batch: StepBatch) -> torch.Tensor:
+        return (((features - self.features(batch)) / self.scale) ** 2).mean()
+
+
+def losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Generator, cfg: DistillConfig,
+           teacher: FeatureTeacher | None = None) -> tuple[torch.Tensor, dict[str, float]]:
     """The total loss of ``batch`` and its terms, the network run in ``cfg.precision``, the losses in fp32."""
     with torch.autocast(gen.device.type, dtype=torch.bfloat16, enabled=cfg.precision == "bf16"):
-        return _losses(net, scheduler, batch, gen, cfg)
+        return _losses(net, scheduler, batch, gen, cfg, teacher)
 
 
 def _losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Generator,
-            cfg: DistillConfig) -> tuple[torch.Tensor, dict[str, float]]:
+            cfg: DistillConfig, teacher: FeatureTeacher | None) -> tuple[torch.Tensor, dict[str, float]]:
     terms = {}
     if not cfg.perception_only:  # drawn first, as by every fit before the option: the same draws
         clean = net.action_norm.normalise(batch.chunk)
@@ -157,11 +184,14 @@ def _losses(net: PerceptionStudent, scheduler, batch: StepBatch, gen: torch.Gene
         seen = (pixels.abs() <= 1).all(dim=-1)
         error = ((keypoints[:, :SUPERVISED_KEYPOINTS] - pixels) ** 2).sum(dim=-1)
         terms["keypoints"] = (error * seen).sum() / seen.sum().clamp_min(1)
+        if teacher is not None:
+            terms["teacher"] = teacher.loss(features.float(), batch)
     if not cfg.perception_only:
         terms["denoise"] = nn.functional.mse_loss(net(noisy, k, obs).float(),
                                                   training_target(scheduler, clean, noise, k))
     total = (terms.get("denoise", 0.0) + cfg.facts_loss * terms.get("facts", 0.0)
-             + cfg.near_loss * terms.get("near", 0.0) + cfg.keypoint_loss * terms.get("keypoints", 0.0))
+             + cfg.near_loss * terms.get("near", 0.0) + cfg.keypoint_loss * terms.get("keypoints", 0.0)
+             + cfg.teacher_loss * terms.get("teacher", 0.0))
     return total, {name: float(value.detach()) for name, value in terms.items()}
 
 
@@ -178,7 +208,7 @@ def near_error(facts: torch.Tensor, labels: torch.Tensor) -> torch.Tensor:
 
 def shifted(batch: StepBatch, max_px: int, gen: torch.Generator) -> StepBatch:
     """``batch`` with each depth stack moved by a random whole-pixel shift in [-max_px, max_px] (x and y, the
-    edge repeated) and its object and hand pixel labels moved alike."""
+    edge repeated) and its object and hand pixel labels (and its teacher's stack) moved alike."""
     if max_px == 0:
         return batch
     b, _, h, w = batch.depth.shape
@@ -188,12 +218,14 @@ def shifted(batch: StepBatch, max_px: int, gen: torch.Generator) -> StepBatch:
     theta[:, 0, 0] = theta[:, 1, 1] = 1.0
     theta[:, :, 2] = -step  # output pixel p reads input p - shift: the content moves by +shift
     grid = nn.functional.affine_grid(theta, list(batch.depth.shape), align_corners=True)
-    depth = nn.functional.grid_sample(batch.depth, grid, mode="nearest", padding_mode="border",
-                                      align_corners=True)
+    depth, teacher = (None if d is None else nn.functional.grid_sample(d, grid, mode="nearest",
+                                                                       padding_mode="border",
+                                                                       align_corners=True)
+                      for d in (batch.depth, batch.teacher_depth))
     labels = batch.labels.clone()
     for columns in (OBJECT_PX, HAND_PX):
         labels[:, columns] += step
-    return StepBatch(depth, batch.state, labels, batch.chunk)
+    return StepBatch(depth, batch.state, labels, batch.chunk, teacher)
 
 
 def training_layout(net: PerceptionStudent) -> PerceptionStudent:
@@ -231,8 +263,10 @@ def start(out: Path, model_cfg: StudentConfig, info: TrainingInfo, steps: Labell
 
 
 def distill(steps: LabelledSteps, out: Path, model_cfg: StudentConfig, cfg: DistillConfig,
-            info: TrainingInfo, init: Path | None = None) -> dict:
+            info: TrainingInfo, init: Path | None = None, teacher: FeatureTeacher | None = None) -> dict:
     """Fit to ``cfg.steps`` into ``out``/ckpt.pt (with loss.png); returns a summary."""
+    if (teacher is None) != (cfg.teacher_loss == 0):
+        raise ValueError("a feature teacher and --teacher-loss > 0 go together")
     if cfg.perception_only and model_cfg.perception != "depth":
         raise ValueError(f"a perception-only fit needs a depth student, not perception="
                          f"{model_cfg.perception!r}")
@@ -263,7 +297,7 @@ def distill(steps: LabelledSteps, out: Path, model_cfg: StudentConfig, cfg: Dist
         index = (torch.randint(0, len(steps), (cfg.batch,), generator=sampler) if weights is None
                  else torch.multinomial(weights, cfg.batch, replacement=True, generator=sampler))
         batch = steps.batch(index)
-        loss, terms = losses(net, scheduler, batch, gen, cfg)
+        loss, terms = losses(net, scheduler, batch, gen, cfg, teacher)
         terms["grad_norm"] = optimise(net, optim, loss, cfg.max_grad_norm)
         ema_update(ema, net, step, cfg.ema_max)
         ckpt.losses.append(terms[tracked])

@@ -42,23 +42,30 @@ class StepBatch:
     chunk: torch.Tensor | None
     """float32 [B, Ha, 8] the expert's action chunk from the step's state, env units; None when the steps
     are read without them (a perception-only fit)."""
+    teacher_depth: torch.Tensor | None = None
+    """float32 [B, To, H, W] the same stacks from a feature teacher's depth source (``teacher_source``),
+    else None."""
 
 
 class LabelledSteps:
     def __init__(self, paths: list[Path], obs_horizon: int, action_horizon: int, *, depth: bool,
-                 chunks: bool = True, device: torch.device | str = "cpu", depth_source: str = "gt") -> None:
+                 chunks: bool = True, device: torch.device | str = "cpu", depth_source: str = "gt",
+                 teacher_source: str | None = None) -> None:
         """``chunks``: read the expert's action chunks too (every store must hold them); without, the steps
         serve perception alone, and stores of frame labels only (a ``RoundSpec.horizon`` 0 round) will do.
         ``depth_source``: ``gt`` (the clean frames), ``sensor`` (what a round's ``RoundSpec.sensor``
-        showed the learner) or a generated source (``STORED``)."""
+        showed the learner) or a generated source (``STORED``). ``teacher_source``: a second source whose
+        stacks of the same steps each batch carries too (``StepBatch.teacher_depth``)."""
         self.device = torch.device(device)
-        if depth_source not in STORED:
-            raise StepsError(f"unknown depth source {depth_source!r}; choose one of {sorted(STORED)}")
+        sources = [depth_source] + ([teacher_source] if teacher_source else [])
+        for source in sources:
+            if source not in STORED:
+                raise StepsError(f"unknown depth source {source!r}; choose one of {sorted(STORED)}")
         stores = [DemoStore.open(p) for p in paths]
-        array = STORED[depth_source]
         if depth:
             for store in stores:  # refused when absent, or a generator's unfinished chunks (zeros)
-                store.check_depth(depth_source, store.n_steps)
+                for source in sources:
+                    store.check_depth(source, store.n_steps)
         parts = [self._read(store, p, action_horizon if chunks else 0)
                  for store, p in zip(stores, paths, strict=True)]
         self.spec: DepthSpec = parts[0]["spec"]
@@ -79,8 +86,10 @@ class LabelledSteps:
         if len(scales) > 1:
             raise StepsError(f"{paths} mix depth scales {sorted(scales)}")
         spill = paths[0].parent if self.device.type == "cpu" else None  # a GPU copy frees the host's at once
-        self.frames = (torch.from_numpy(_frames(stores, spill, array).view(np.int16)).to(self.device)
-                       if depth else None)
+        held = [torch.from_numpy(_frames(stores, spill, STORED[source]).view(np.int16)).to(self.device)
+                for source in (sources if depth else [])]
+        self.frames = held[0] if held else None
+        self.teacher_frames = held[1] if len(held) > 1 else None
         self.normalised = torch.from_numpy(normalise(np.arange(2 ** 16, dtype=np.uint16), scales.pop(),
                                                      self.spec)).to(self.device)
         """float32 [65536]: ``normalise`` of each uint16 sensor value."""
@@ -110,12 +119,15 @@ class LabelledSteps:
 
     def batch(self, index: torch.Tensor) -> StepBatch:
         index = index.to(self.device)
-        depth = None
-        if self.frames is not None:
-            sensor = self.frames[self.stack_index[index]].int() & 0xFFFF  # int16 bits -> uint16 values
-            depth = self.normalised[sensor]
         chunk = None if self.chunk is None else self.chunk[index]
-        return StepBatch(depth, self.state[index], self.labels[index], chunk)
+        return StepBatch(self._stacks(self.frames, index), self.state[index], self.labels[index], chunk,
+                         self._stacks(self.teacher_frames, index))
+
+    def _stacks(self, frames: torch.Tensor | None, index: torch.Tensor) -> torch.Tensor | None:
+        if frames is None:
+            return None
+        sensor = frames[self.stack_index[index]].int() & 0xFFFF  # int16 bits -> uint16 values
+        return self.normalised[sensor]
 
 
 def _frames(stores: list[DemoStore], folder: Path | None, array: str = "data/depth") -> np.ndarray:
