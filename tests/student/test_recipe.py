@@ -278,6 +278,17 @@ def test_a_fit_reads_the_sensors_frames_where_asked_and_refuses_a_store_without_
         np.testing.assert_array_equal(steps.batch(torch.tensor([2])).depth[0, -1].numpy(), expected)
     with pytest.raises(DatasetError, match="no data/depth_sensor .* `python -m trainer student readout "):
         LabelledSteps([tmp_path / "clean.zarr"], 1, 1, depth=True, chunks=False, depth_source="sensor")
+    both = LabelledSteps([tmp_path / "noisy.zarr"], obs_horizon=2, action_horizon=1, depth=True, chunks=False,
+                         depth_source="sensor", teacher_source="gt")
+    index = torch.tensor([0, 2, 3])
+    alone = {source: LabelledSteps([tmp_path / "noisy.zarr"], obs_horizon=2, action_horizon=1, depth=True,
+                                   chunks=False, depth_source=source).batch(index).depth
+             for source in ("gt", "sensor")}
+    batch = both.batch(index)
+    torch.testing.assert_close(batch.depth, alone["sensor"], rtol=0, atol=0)
+    torch.testing.assert_close(batch.teacher_depth, alone["gt"], rtol=0, atol=0)
+    plain = LabelledSteps([tmp_path / "noisy.zarr"], 1, 1, depth=True, chunks=False)
+    assert plain.teacher_frames is None and plain.batch(index).teacher_depth is None
 
 
 def test_training_frames_are_held_in_a_dtype_a_gpu_can_index_and_read_back_exactly(tmp_path):
@@ -511,8 +522,9 @@ def test_a_shifted_stack_carries_its_pixel_labels_along():
     depth[torch.arange(n), :, ys, xs] = 1.0
     labels = torch.rand(n, 12)
     labels[:, OBJECT_PX] = torch.stack([xs * 2 / (w - 1) - 1, ys * 2 / (h - 1) - 1], dim=1)
-    out = shifted(StepBatch(depth, torch.zeros(n, 8), labels, torch.zeros(n, 4, 8)), 4,
+    out = shifted(StepBatch(depth, torch.zeros(n, 8), labels, torch.zeros(n, 4, 8), 2 * depth), 4,
                   torch.Generator().manual_seed(0))
+    torch.testing.assert_close(out.teacher_depth, 2 * out.depth, rtol=0, atol=0)  # the same shift
     moved = 0
     for i in range(n):
         peak = (out.depth[i] == 1).nonzero()
@@ -723,6 +735,43 @@ def test_refit_fits_a_student_on_given_stores_from_its_own_weights(tmp_path, cap
                          str(tmp_path / "no")]) == 2
     err = capsys.readouterr().err
     assert "--init must be a depth student of one perception" in err and err.count("\n") == 1
+
+
+def test_a_feature_teacher_pulls_the_fitted_features_toward_its_own_of_the_clean_frames(tmp_path, capsys):
+    """``refit --teacher``: the teacher's term is nil where the student is the teacher and the fitted frames
+    are the clean ones, not where they are a sensor's; the refit records its teacher; a teacher without a
+    weight, or of another network, is refused in one line."""
+    from trainer.student.cli import main as student_main
+    from trainer.student.distill import FeatureTeacher
+    from trainer.student.steps import LabelledSteps
+
+    eye, other = tmp_path / "eye.pt", tmp_path / "other.pt"
+    assert student_main(["init", "--out", str(eye), "--perception", "depth", *TINY]) == 0
+    wider = [*TINY[:1], "16", *TINY[2:]]
+    assert student_main(["init", "--out", str(other), "--perception", "depth", *wider]) == 0
+    config = EnvConfig(objects=("cube",), max_steps=6, depth=checkpoint.load(eye).info.depth_spec)
+    store = tmp_path / "noisy.zarr"
+    collect_round(store, config, RoundSpec(horizon=0, sensor="randnoise"), episodes=2, seed=3)
+    net, index = checkpoint.load(eye).policy(), torch.arange(8)
+    for source, nil in (("gt", True), ("sensor", False)):
+        steps = LabelledSteps([store], net.config.obs_horizon, 1, depth=True, chunks=False,
+                              depth_source=source, teacher_source="gt")
+        batch = steps.batch(index)
+        with torch.no_grad():
+            features = net.perceive(batch.depth, batch.state)[0]
+        loss = float(FeatureTeacher(checkpoint.load(eye).policy(), steps).loss(features, batch))
+        assert (loss < 1e-10) if nil else (loss > 1e-3), (source, loss)
+    args = ["refit", "--init", str(eye), "--stores", str(store), "--steps", "2", "--batch", "2",
+            "--perception-only", "--depth-source", "sensor", "--teacher", str(eye)]
+    assert student_main([*args, "--teacher-loss", "0.5", "--out", str(tmp_path / "fit")]) == 0
+    done = checkpoint.load(tmp_path / "fit" / "ckpt.pt")
+    assert done.step == 2 and done.info.data["refit"]["teacher"] == str(eye)
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["last_terms"]["teacher"] > 0
+    for extra, message in (([], "a feature teacher and --teacher-loss > 0 go together"),
+                           (["--teacher-loss", "1", "--teacher", str(other)], "must be a depth student of")):
+        assert student_main([*args, *extra, "--out", str(tmp_path / "no")]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1
 
 
 def test_a_perception_only_refit_reads_frames_without_chunks_and_leaves_the_head_as_it_was(tmp_path, capsys):
