@@ -1,5 +1,5 @@
 # The stages of a depth readout's rounds under one depth source (issue 45), sourced by research/sensor_dagger.sh
-# and research/offcentre_readout.sh. Env: SENSOR (stereo), NAME (ceiling), WORKERS (2: simulation processes).
+# and the other research/*_readout.sh. Env: SENSOR (stereo), NAME (ceiling), WORKERS (2: simulation processes).
 #
 # Every stage leaves its output under $DIFFUDEPGRASP_HOME/table2/$NAME (the project's home for long-lived artifacts,
 # default ~/.cache/diffudepgrasp, as trainer.student.recipe.default_home) and is skipped when that output is there:
@@ -45,7 +45,8 @@ collect() {
     touch "$store.done"
 }
 
-# fit ROUND INIT STORES...: INIT's first readout refitted 400 steps, composed with M0, exported.
+# fit ROUND INIT STORES...: INIT's first readout refitted 400 steps, composed with M0, exported; with TEACHER (a
+# clean-depth student) and TEACHER_LOSS (its weight), its features of the clean frames teach the readout's.
 fit() {
     local round=$1 init=$2 steps=400; shift 2
     local out=$D/fit$round onnx=$D/c$round/student.onnx
@@ -53,7 +54,8 @@ fit() {
     log "fit round $round ($steps steps on $*)"
     python -m trainer student refit --init "$init" --stores "$@" --depth-source sensor --perception-only \
         --shares seen=0.45 squares=0.2 --steps "$steps" --batch 128 --lr 3e-4 --shift-px 6 --near-loss 1 \
-        --precision $PRECISION --threads 2 --ckpt-every 50 --out "$out"
+        --precision $PRECISION --threads 2 --ckpt-every 50 --out "$out" \
+        ${TEACHER:+--teacher "$TEACHER" --teacher-loss "$TEACHER_LOSS"}
     python -m trainer student compose --perception "$out/ckpt.pt" --head "$K/head.pt" --out "$D/c$round/student.pt"
     python -m export "$D/c$round/student.pt" --ddim-steps 4 --out "$onnx"
 }
