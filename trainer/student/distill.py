@@ -53,11 +53,11 @@ class DistillConfig:
     ``docs/history.md``, 2026-11-27), which closes the fingers beside the object; the world forgives errors
     far from it. Weight 1: 74.2 % of 360 seen-kind episodes against 68.6 % without (no interval cleared)."""
     keypoint_loss: float = 10.0
+    """Weight of the supervised keypoints' squared error in [-1, 1] image units (a pixel is ~0.02)."""
     teacher_loss: float = 0.0
     """Weight of the feature teacher's term (``FeatureTeacher``, ``trainer student refit --teacher``): the
     mean squared gap, in the teacher's standard deviations, between the readout's features of the fitted
     frames and the teacher's of the clean frames of the same steps."""
-    """Weight of the supervised keypoints' squared error in [-1, 1] image units (a pixel is ~0.02)."""
     max_grad_norm: float = 1.0
     """Gradients are scaled down to this total norm before each step, so that one bad batch cannot throw the
     weights far (an unclipped depth fit at lr 3e-4 spiked at step 3330: readout loss 0.004 -> 0.9, keypoints
