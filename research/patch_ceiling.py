@@ -49,7 +49,7 @@ from hil_sim.objects import select_kinds
 from research.low_hand_readout import BANDS_CM, OPEN_M, in_band, versus
 from runtime.preprocess import DepthSpec, crop_resize, normalise
 from trainer.dataset import DEPTH_SCALE
-from trainer.policies import NEEDS_DEPTH, Observation, depth_spec, make_policy, parse
+from trainer.policies import Observation, depth_spec, make_policy
 from trainer.sim.env import HAND_POSITION, EnvConfig, GraspEnv
 from trainer.sim.labels import OFFSET, SIZE, frame_labels
 from trainer.sim.rollout import in_workers, schedule, start_episode
@@ -194,10 +194,10 @@ def glimpse(out: Path, kinds: tuple[str, ...], episodes: int, seed: int, driver:
             workers: int, beta: float = 0.0, approach: bool = False) -> None:
     """Glimpses (or whole approaches) of ``episodes`` scenes under ``sensor``, one .npz each, resumed where it
     stopped."""
-    spec = replace(APPROACH if approach else GLIMPSE, learner=driver, sensor=sensor, beta=beta)
-    if not approach and NEEDS_DEPTH[parse(driver)[0]]:
-        raise SystemExit(f"a glimpse renders only the frames it keeps: --driver must read no depth, "
-                         f"not {driver}")
+    try:
+        spec = replace(APPROACH if approach else GLIMPSE, learner=driver, sensor=sensor, beta=beta)
+    except ValueError as e:  # a glimpse's driver that reads depth
+        raise SystemExit(str(e)) from None
     make_sensor(sensor)  # an unknown sensor fails here in one line, not in every worker
     out.mkdir(parents=True, exist_ok=True)
     jobs = [j for j in schedule(kinds, seed, episodes) if not (out / f"{j.seed}.npz").exists()]
@@ -282,10 +282,9 @@ def predict(net: nn.Module, s_mean: torch.Tensor, s_std: torch.Tensor, data: dic
     return (pred - y).numpy()
 
 
-def readout_errors(ckpt: Path, data: dict) -> np.ndarray:
+def readout_errors(net: nn.Module, data: dict) -> np.ndarray:
     """A depth student's own readout's errors [N, 6] on the same frames (its 3-frame stacks of the policy
     frames, as ``LabelledSteps`` stacks them)."""
-    net = checkpoint.load(ckpt).policy().eval()
     spec, horizon = DepthSpec(), net.config.obs_horizon  # normalise reads only its metric range
     start = np.searchsorted(data["episode"], data["episode"])  # each frame's episode's first row
     stacks = np.maximum(np.arange(len(start))[:, None] - np.arange(horizon - 1, -1, -1), start[:, None])
@@ -413,7 +412,8 @@ def main() -> None:
     errors = {}
     for variant in args.variant:
         if variant == "readout":
-            errors[variant] = [readout_errors(args.ckpt, data) for _, data in tests]
+            net = checkpoint.load(args.ckpt).policy().eval()
+            errors[variant] = [readout_errors(net, data) for _, data in tests]
             continue
         start = time.time()
         net, s_mean, s_std = fit(train, variant, args.steps, args.batch, args.seed)

@@ -135,12 +135,13 @@ def test_a_glimpse_keeps_the_last_frames_before_a_drawn_height_as_the_full_run_r
     assert not (glimpse["depth"] == 0).all()  # rendered, though the run itself rendered none
 
 
-def test_a_glimpse_refuses_a_driver_that_reads_depth_and_a_spec_without_its_end_height(tmp_path):
+def test_a_glimpse_refuses_a_driver_that_reads_depth_and_a_spec_without_its_end_height():
     with pytest.raises(ValueError, match="end height"):
         RoundSpec(horizon=0, glimpse=3)
-    spec = RoundSpec(learner="student:models/student.onnx", horizon=0, end_height_m=0.12, glimpse=3)
     with pytest.raises(ValueError, match="must read no depth"):
-        collect_round(tmp_path / "s.zarr", EnvConfig(objects=("cube",)), spec, episodes=1, seed=7)
+        RoundSpec(learner="student:models/student.onnx", horizon=0, end_height_m=0.12, glimpse=3)
+    RoundSpec(learner="oracle:head.pt@1.0", horizon=0, end_height_m=0.12, glimpse=3)  # a privileged driver
+    RoundSpec(learner="student:models/student.onnx", horizon=0, end_height_m=0.12)  # a whole approach
 
 
 def test_a_round_without_chunks_drives_the_same_states_and_labels_its_frames_alone(tmp_path):

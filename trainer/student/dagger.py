@@ -61,6 +61,9 @@ class RoundSpec:
         if self.glimpse and not (self.end_height_m > 0 and self.horizon == 0):
             raise ValueError("a glimpse needs an end height (--end-height-cm) and frames labelled alone "
                              "(--no-chunks)")
+        if self.glimpse and self.learner and NEEDS_DEPTH[parse(self.learner)[0]]:
+            raise ValueError(f"a glimpse renders only the frames it keeps: its driver must read no depth, "
+                             f"not {self.learner}")
 
 
 GLIMPSE_TOP_M = 0.30
@@ -161,9 +164,6 @@ def collect_round(path: Path, config: EnvConfig, spec: RoundSpec, *, episodes: i
     store's tally."""
     make_sensor(spec.sensor)  # an unknown sensor fails here in one line, not in every worker
     if spec.glimpse:
-        if spec.learner and NEEDS_DEPTH[parse(spec.learner)[0]]:
-            raise ValueError(f"a glimpse renders only the frames it keeps: its driver must read no depth, "
-                             f"not {spec.learner}")
         config = replace(config, render_depth=False)  # the kept frames are rendered at the end
     store = DemoStore.create(path, spec=config.depth, action_scale=config.action_scale,
                              control_rate_hz=config.control_rate_hz, labels=True, chunk_horizon=spec.horizon,
