@@ -3,11 +3,12 @@
 # frame of each step beside the sensor's, and the shipped clean-depth readout reads the clean ones 0.38 cm off
 # where the ceiling's reads the stereo ones 0.73-0.83. Round 2's readout is refitted as round 3's was (400 steps on
 # rounds 0-3), its features of the stereo frames pulled toward the shipped readout's of the clean frames of the
-# same steps with weight W (`trainer student refit --teacher --teacher-loss W`), as "teachW"; the gate: paired
-# against round 3's readout on the 40 held-out approaches of `research/approach_readout.sh 2`; then CELL=1 runs a
-# 180-episode seen-kind cell under stereo. Every stage is resumed (research/sensor_stages.sh).
+# same steps with weight W (`trainer student refit --teacher --teacher-loss W`), as "teachW"; AIM=1 adds the 300
+# learner approaches of `research/approach_readout.sh 2 300` ("teachWaim"). The gate: paired against round 3's
+# readout on the 40 held-out approaches of `research/approach_readout.sh 2`; then CELL=1 runs a 180-episode
+# seen-kind cell under stereo. Every stage is resumed (research/sensor_stages.sh).
 #
-#   research/teacher_readout.sh [W]   # env as research/sensor_dagger.sh, and CELL=1
+#   research/teacher_readout.sh [W]   # env as research/sensor_dagger.sh, and AIM=1, CELL=1
 set -euo pipefail
 W=${1:-0.5}
 source "$(dirname "$0")/sensor_stages.sh"
@@ -18,9 +19,14 @@ stores=()
 for r in 0 1 2 3; do
     need "$D/round$r.zarr" "research/sensor_dagger.sh 3"
 done
-TEACHER=$K/student.pt TEACHER_LOSS=$W fit "teach$W" "$D/fit2/ckpt.pt" "${stores[@]}"
-out=$R/table2/low_hand/c3_vs_cteach${W}_approach_heldout.json
+name=teach$W
+if [[ ${AIM:-0} == 1 ]]; then
+    need "$D/approach.zarr" "research/approach_readout.sh 2 300"
+    name=teach${W}aim
+fi
+TEACHER=$K/student.pt TEACHER_LOSS=$W fit "$name" "$D/fit2/ckpt.pt" "${stores[@]}"
+out=$R/table2/low_hand/c3_vs_c${name}_approach_heldout.json
 [[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$D/c3/student.pt" "$D/approach_heldout.zarr" \
-    --versus "$D/cteach$W/student.pt" --out "$out" > /dev/null
-[[ ${CELL:-0} == 1 ]] && cell "teach$W"
-log "done: $D/cteach$W (gate: $out)"
+    --versus "$D/c$name/student.pt" --out "$out" > /dev/null
+[[ ${CELL:-0} == 1 ]] && cell "$name"
+log "done: $D/c$name (gate: $out)"
