@@ -4,11 +4,12 @@
 # where the ceiling's reads the stereo ones 0.73-0.83. Round 2's readout is refitted as round 3's was (400 steps on
 # rounds 0-3), its features of the stereo frames pulled toward the shipped readout's of the clean frames of the
 # same steps with weight W (`trainer student refit --teacher --teacher-loss W`), as "teachW"; AIM=1 adds the 300
-# learner approaches of `research/approach_readout.sh 2 300` ("teachWaim"). The gate: paired against round 3's
+# learner approaches of `research/approach_readout.sh 2 300` ("teachWaim"); REPEAT=N refits it N times, each
+# 400 steps warm-started from the last ("teachWaimxN", the teacher's loss still falls at 400). The gate: paired against round 3's
 # readout on the 40 held-out approaches of `research/approach_readout.sh 2`; then CELL=1 runs a 180-episode
 # seen-kind cell under stereo. Every stage is resumed (research/sensor_stages.sh).
 #
-#   research/teacher_readout.sh [W]   # env as research/sensor_dagger.sh, and AIM=1, CELL=1
+#   research/teacher_readout.sh [W]   # env as research/sensor_dagger.sh, and AIM=1, REPEAT=N, CELL=1
 set -euo pipefail
 W=${1:-0.5}
 source "$(dirname "$0")/sensor_stages.sh"
@@ -24,7 +25,12 @@ if [[ ${AIM:-0} == 1 ]]; then
     need "$D/approach.zarr" "research/approach_readout.sh 2 300"
     name=teach${W}aim
 fi
-TEACHER=$K/student.pt TEACHER_LOSS=$W fit "$name" "$D/fit2/ckpt.pt" "${stores[@]}"
+init=$D/fit2/ckpt.pt first=$name
+for ((k = 1; k <= ${REPEAT:-1}; k++)); do
+    ((k > 1)) && name=${first}x$k
+    TEACHER=$K/student.pt TEACHER_LOSS=$W fit "$name" "$init" "${stores[@]}"
+    init=$D/fit$name/ckpt.pt
+done
 out=$R/table2/low_hand/c3_vs_c${name}_approach_heldout.json
 [[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$D/c3/student.pt" "$D/approach_heldout.zarr" \
     --versus "$D/c$name/student.pt" --out "$out" > /dev/null
