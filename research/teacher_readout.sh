@@ -5,9 +5,9 @@
 # rounds 0-3), its features of the stereo frames pulled toward the shipped readout's of the clean frames of the
 # same steps with weight W (`trainer student refit --teacher --teacher-loss W`), as "teachW"; AIM=1 adds the 300
 # learner approaches of `research/approach_readout.sh 2 300` ("teachWaim"); REPEAT=N refits it N times, each
-# 400 steps warm-started from the last ("teachWaimxN", the teacher's loss still falls at 400). The gate: paired against round 3's
-# readout on the 40 held-out approaches of `research/approach_readout.sh 2`; then CELL=1 runs a 180-episode
-# seen-kind cell under stereo. Every stage is resumed (research/sensor_stages.sh).
+# 400 steps warm-started from the last ("teachWaimxN", the teacher's loss still falls at 400). The gate: paired
+# against round 3's readout on the 40 held-out approaches of `research/approach_readout.sh 2`; then CELL=1 runs a
+# 180-episode seen-kind cell under stereo. Every stage is resumed (research/sensor_stages.sh).
 #
 #   research/teacher_readout.sh [W]   # env as research/sensor_dagger.sh, and AIM=1, REPEAT=N, CELL=1
 set -euo pipefail
