@@ -45,14 +45,15 @@ collect() {
     touch "$store.done"
 }
 
-# fit ROUND INIT STORES...: INIT's first readout refitted 400 steps, composed with M0, exported; with TEACHER (a
-# clean-depth student) and TEACHER_LOSS (its weight), its features of the clean frames teach the readout's.
+# fit ROUND INIT STORES...: INIT's first readout refitted 400 steps on the stores' SOURCE frames (default sensor: what
+# the learner saw; ddg: `trainer ddg generate`'s), composed with M0, exported; with TEACHER (a clean-depth student) and
+# TEACHER_LOSS (its weight), its features of the clean frames teach the readout's.
 fit() {
     local round=$1 init=$2 steps=400; shift 2
     local out=$D/fit$round onnx=$D/c$round/student.onnx
     [[ -f $onnx ]] && return
     log "fit round $round ($steps steps on $*)"
-    python -m trainer student refit --init "$init" --stores "$@" --depth-source sensor --perception-only \
+    python -m trainer student refit --init "$init" --stores "$@" --depth-source "${SOURCE:-sensor}" --perception-only \
         --shares seen=0.45 squares=0.2 --steps "$steps" --batch 128 --lr 3e-4 --shift-px 6 --near-loss 1 \
         --precision $PRECISION --threads 2 --ckpt-every 50 --out "$out" \
         ${TEACHER:+--teacher "$TEACHER" --teacher-loss "$TEACHER_LOSS"}
