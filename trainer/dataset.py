@@ -73,9 +73,11 @@ DEPTH_SOURCES = {
     "sensor": DepthSource("data/depth_sensor", "python -m trainer collect --sensor",
                           "python -m trainer student readout --store S --episodes N --sensor"),
     "residual": DepthSource("data/depth_residual", "python -m trainer ddg generate --generator residual"),
+    "residual_edges": DepthSource("data/depth_residual_edges",
+                                  "python -m trainer ddg generate --generator residual_edges"),
 }
 """Depth source -> its stored array. sensor: what a simulated sensor showed at each step."""
-GENERATORS = {"ddg": ("ddg", "ddg_nograft"), "residual": ("residual",)}
+GENERATORS = {"ddg": ("ddg", "ddg_nograft"), "residual": ("residual",), "residual_edges": ("residual_edges",)}
 """Each generator -> the sources it makes chunk by chunk (``DemoStore.generation_outputs``); its settings are
 the store's attrs[generator], its record of made chunks ``meta/<generator>_done``."""
 

@@ -42,7 +42,7 @@ def test_inpaint_fills_every_hole(clean):
 
 
 def test_registry_names_and_errors(tiny_model, clean):
-    assert set(SOURCES) == {"gt", "randnoise", "inpaint", "ddg_nograft", "ddg", "residual"}
+    assert set(SOURCES) == {"gt", "randnoise", "inpaint", "ddg_nograft", "ddg", "residual", "residual_edges"}
     with pytest.raises(UnknownSourceError, match="unknown depth source 'kinect'"):
         get_source("kinect")
     out = get_source("ddg", model=tiny_model, steps=2)(clean, np.random.default_rng(0))

@@ -5,7 +5,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from runtime.preprocess import DepthSpec
-from trainer.ddg.graft import HOLE_THRESHOLD, GraftError, decode, encode, graft
+from trainer.ddg.graft import HOLE_THRESHOLD, GraftError, decode, edge_band, encode, graft, graft_edges
 
 SPEC = DepthSpec()
 frames = arrays(np.uint16, (12, 16), elements=st.integers(0, 3000))
@@ -53,3 +53,20 @@ def test_graft_rejects_mismatched_inputs():
         graft(np.zeros((4, 4), np.uint16), np.zeros((4, 5), np.uint16), SPEC)
     with pytest.raises(GraftError, match="uint16"):
         graft(np.zeros((4, 4), np.float32), np.zeros((4, 4), np.uint16), SPEC)
+
+
+def test_edge_grafting_keeps_the_generated_depth_near_edges_only_and_its_holes_everywhere():
+    sim = np.full((1, 10, 16), 800, np.uint16)
+    sim[:, :, 8:] = 1200  # one vertical depth edge between columns 7 and 8
+    made = sim + np.uint16(37)
+    made[0, 5, 2] = made[0, 5, 8] = 0  # a hole on the flat, one at the edge
+    out = graft_edges(sim, made)
+    near = edge_band(sim[0])
+    assert near[:, 6:10].all() and not near[:, :5].any() and not near[:, 11:].any()
+    keep = (made != 0) & near[None]
+    assert np.array_equal(out[keep], made[keep])
+    flat = (made != 0) & ~near[None]
+    assert np.array_equal(out[flat], sim[flat])
+    assert out[0, 5, 2] == 0 and out[0, 5, 8] == 0 and out.dtype == np.uint16
+    with pytest.raises(GraftError, match="equal"):
+        graft_edges(sim, made[:, :, :8])

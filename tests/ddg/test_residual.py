@@ -12,6 +12,7 @@ import torch
 from runtime.preprocess import DepthSpec
 from tests.conftest import write_synthetic_demos
 from trainer.ddg.cli import main
+from trainer.ddg.graft import graft_edges
 from trainer.ddg.model import UNetConfig, build_unet, ddim_scheduler, ddpm_scheduler
 from trainer.ddg.pairs import load_pairs
 from trainer.ddg.point_patches import POINT_SCALE, PatchError, point_patches, tile
@@ -267,11 +268,12 @@ def test_pairs_hold_out_every_kth_episode_and_stride(paired):
     assert train.spec == DepthSpec()
 
 
+@pytest.mark.parametrize("source", ["residual", "residual_edges"])
 def test_residual_depth_generated_into_a_store_is_the_generators_in_any_shards_and_fits_read_it(
-        paired, model, tmp_path):
-    """`ddg generate --generator residual`: shard by shard into data/depth_residual, each frame the
-    generator's own under its index; unfinished chunks are refused, and a fit (or a readout) then reads
-    exactly those."""
+        paired, model, tmp_path, source):
+    """`ddg generate --generator residual|residual_edges`: shard by shard into data/depth_<source>, each
+    frame the generator's own under its index (edge-grafted for residual_edges); unfinished chunks are
+    refused, and a fit (or a readout) then reads exactly those."""
     import shutil
 
     from trainer.dataset import DatasetError, DemoStore
@@ -279,19 +281,20 @@ def test_residual_depth_generated_into_a_store_is_the_generators_in_any_shards_a
 
     store = tmp_path / "pairs.zarr"
     shutil.copytree(paired, store)
-    run = ["generate", "--generator", "residual", "--demos", str(store), "--model", str(model),
+    run = ["generate", "--generator", source, "--demos", str(store), "--model", str(model),
            "--steps", "2", "--chunk", "4", "--batch", "3", "--threads", "1"]
     assert main([*run, "--shard", "1/2"]) == 0
     demos = DemoStore.open(store)
-    with pytest.raises(DatasetError, match=r"residual depth of 2 of the 4 chunks .* \(first: chunk 0\)"):
-        LabelledSteps([store], 1, 1, depth=True, chunks=False, depth_source="residual")
+    with pytest.raises(DatasetError, match=rf"{source} depth of 2 of the 4 chunks .* \(first: chunk 0\)"):
+        LabelledSteps([store], 1, 1, depth=True, chunks=False, depth_source=source)
     assert main([*run, "--shard", "0/2"]) == 0
     sim = demos.depth("gt", demos.n_steps)
-    want = ResidualGenerator(model, steps=2, threads=1)(sim, np.arange(len(sim)))
-    np.testing.assert_array_equal(demos.depth("residual", demos.n_steps), want)
-    steps = LabelledSteps([store], 1, 1, depth=True, chunks=False, depth_source="residual")
+    made = ResidualGenerator(model, steps=2, threads=1)(sim, np.arange(len(sim)))
+    want = graft_edges(sim, made) if source == "residual_edges" else made
+    np.testing.assert_array_equal(demos.depth(source, demos.n_steps), want)
+    steps = LabelledSteps([store], 1, 1, depth=True, chunks=False, depth_source=source)
     np.testing.assert_array_equal(steps.frames.numpy().view(np.uint16), want)
-    assert demos.generated_with("ddg") is None and demos.generated_with("residual")["steps"] == 2
+    assert demos.generated_with("ddg") is None and demos.generated_with(source)["steps"] == 2
 
 
 def test_vs_sensor_sets_each_source_beside_the_sensors_frames(paired, model, tiny_model, tmp_path, capsys):
@@ -304,7 +307,11 @@ def test_vs_sensor_sets_each_source_beside_the_sensors_frames(paired, model, tin
                  "--json", str(out)]) == 0
     rows = json.loads(out.read_text())["sources"]
     assert list(rows) == ["sensor", "gt", "randnoise", f"{tiny_model.name} grafted",
-                          f"{tiny_model.name} ungrafted", f"{model.name} stage I"]
+                          f"{tiny_model.name} ungrafted", f"{model.name} stage I",
+                          f"{model.name} edge-grafted"]
+    made, edges = rows[f"{model.name} stage I"], rows[f"{model.name} edge-grafted"]
+    assert made["flat_off_20mm_pct"] > 0 and edges["flat_off_20mm_pct"] == 0.0  # flat: the simulator's depth
+    assert edges["edge_off_20mm_pct"] == made["edge_off_20mm_pct"]  # near edges: the generator's
     assert rows["sensor"]["sensor_holes_shared_pct"] == 100.0
     assert rows["gt"]["sensor_holes_shared_pct"] == 0.0 and rows["gt"]["flat_off_20mm_pct"] == 0.0
     assert rows["sensor"]["flat_holes_pct"] > 0 and len(rows["gt"]["fid_ci95"]) == 2

@@ -109,10 +109,10 @@ class ResidualSource:
     """One frame at a time through the residual diffusion (at the model's resolution); the frame's noise
     comes from ``rng``."""
 
-    def __init__(self, model: str | Path = DEFAULT_RESIDUAL, steps: int = 10) -> None:
+    def __init__(self, model: str | Path = DEFAULT_RESIDUAL, steps: int = 10, edges: bool = False) -> None:
         from .residual import ResidualGenerator
 
-        self.generator = ResidualGenerator(model, steps=steps)
+        self.generator = ResidualGenerator(model, steps=steps, edges=edges)
 
     def __call__(self, depth_mm: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         return self.generator(depth_mm[None], np.array([rng.integers(0, 2**62)]))[0]
@@ -125,6 +125,7 @@ SOURCES: dict[str, Callable[..., DepthSource]] = {
     "ddg_nograft": lambda model=DEFAULT_MODEL, steps=10: DDGSource(model, steps, grafted=False),
     "ddg": lambda model=DEFAULT_MODEL, steps=10: DDGSource(model, steps, grafted=True),
     "residual": lambda model=DEFAULT_RESIDUAL, steps=10: ResidualSource(model, steps),
+    "residual_edges": lambda model=DEFAULT_RESIDUAL, steps=10: ResidualSource(model, steps, edges=True),
 }
 
 

@@ -1,5 +1,6 @@
 """Add a generator's depth to a demo store, batched, resumable and shardable: the DDG's ``data/depth_ddg`` and
-``data/depth_ddg_nograft``, or the residual diffusion's ``data/depth_residual`` (``--generator residual``).
+``data/depth_ddg_nograft``, or the residual diffusion's ``data/depth_residual`` (``--generator residual``) or
+``data/depth_residual_edges`` (``--generator residual_edges``: edge-grafted, ``graft.graft_edges``).
 
 Work is split in chunks of ``chunk`` frames (the output arrays' zarr chunks), so each chunk is written by
 exactly one shard and the store records it (``DemoStore.generation_outputs``): a killed run resumes where it
@@ -15,6 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +44,9 @@ class GeneratorKind:
 
 
 KINDS = {"ddg": GeneratorKind(DEFAULT_MODEL, model_id, Generator),
-         "residual": GeneratorKind(DEFAULT_RESIDUAL, residual_model_id, ResidualGenerator)}
+         "residual": GeneratorKind(DEFAULT_RESIDUAL, residual_model_id, ResidualGenerator),
+         "residual_edges": GeneratorKind(DEFAULT_RESIDUAL, residual_model_id,
+                                         partial(ResidualGenerator, edges=True))}
 """Each generator by name; the sources it makes are ``trainer.dataset.GENERATORS``'."""
 Generate = Callable[[np.ndarray, np.ndarray], dict[str, np.ndarray]]
 """(simulated frames, their indices in the store) -> each source the generator makes -> its frames."""
@@ -59,8 +63,9 @@ class GenerateConfig:
     resolution (the generator runs at its own and its holes are carried back, nearest-neighbour); for the
     residual diffusion, the model's resolution."""
     generator: str = "ddg"
-    """ddg (data/depth_ddg and data/depth_ddg_nograft) or residual (data/depth_residual: the residual depth
-    diffusion, trainer/ddg/residual.py, every stage its model has)."""
+    """ddg (data/depth_ddg and data/depth_ddg_nograft), residual (data/depth_residual: the residual depth
+    diffusion, trainer/ddg/residual.py, every stage its model has) or residual_edges
+    (data/depth_residual_edges: the same kept only near the simulated frame's depth edges)."""
     model: str = ""
     """The generator's model directory (default: the shipped one, models/ddg or models/residual)."""
     steps: int = 10

@@ -37,6 +37,7 @@ import numpy as np
 
 from runtime.preprocess import DepthSpec, normalise
 
+from .graft import graft_edges
 from .model import RESIDUAL_SCALE, ModelDirError, ddim_scheduler, load_config, model_id
 from .sample import FrameError, OnnxEps, TorchEps, check_frames, ddim_reverse, frame_noise, generate_frames
 
@@ -136,14 +137,16 @@ def residual_model_id(model_dir: str | Path) -> str:
 
 class ResidualGenerator:
     """Simulated uint16 mm frames [N, H, W] -> the sensor's depth as the residual diffusion makes it: stage I,
-    then stage II on its output when the model has one (or ``stages`` of them).
+    then stage II on its output when the model has one (or ``stages`` of them); with ``edges``, kept only near
+    the simulated frame's depth edges (``graft.graft_edges``).
 
     Each frame's noise comes from its own generator seeded by (seed, frame index), as the DDG's does, so a
     frame's output does not depend on batching or sharding."""
 
     def __init__(self, model_dir: str | Path, steps: int = 10, seed: int = 0, threads: int = 2,
                  backend: str = "onnx", mode: str = "split", eta: float = 0.0, stages: int = 0,
-                 frames: DepthSpec | None = None) -> None:
+                 frames: DepthSpec | None = None, edges: bool = False) -> None:
+        self.edges = edges
         self.stages = [Stage(d, steps, threads, backend, mode) for d in stage_dirs(model_dir, stages)]
         first = self.stages[0]
         self.spec, self.code, self.seed, self.eta = first.spec, first.code, seed, eta
@@ -169,7 +172,7 @@ class ResidualGenerator:
             x0 = ddim_reverse(stage.eps, cond, noise, stage.scheduler, self.eta,
                               lambda j, s=seed: frame_noise(s, indices, shape, j, TARGET_CHANNELS))
             out = decode(sim_mm, x0, self.code)
-        return out
+        return graft_edges(sim_mm, out) if self.edges else out
 
 
 def stage1_outputs(model_dir: str | Path, sim_mm: np.ndarray, steps: int, seed: int = 0, threads: int = 2,

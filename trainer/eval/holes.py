@@ -5,12 +5,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-from trainer.ddg.prior import fill_holes
+from trainer.ddg.graft import EDGE_MM_PER_PX, edge_band
 
-EDGE_MM_PER_PX = 20.0
-"""A depth step above this between neighbouring pixels (of the hole-filled depth) is an edge."""
-EDGE_BAND_PX = 2
-"""Pixels within this distance of an edge count as "near an edge"."""
 SIZE_BINS = (1, 2, 5, 17, 65, 257)
 """Hole-component area bins (pixels): 1, 2-4, 5-16, 17-64, 65-256, >256."""
 
@@ -40,16 +36,6 @@ def hole_stats(frames: np.ndarray) -> dict:
 def _component_sizes(hole: np.ndarray) -> np.ndarray:
     labels, n = ndimage.label(hole, structure=np.ones((3, 3)))
     return np.bincount(labels.ravel())[1:] if n else np.zeros(0)
-
-
-def edge_band(frame: np.ndarray) -> np.ndarray:
-    """bool [H, W]: the pixels within ``EDGE_BAND_PX`` of a depth edge of the uint16 mm frame's geometry (its
-    holes filled first, so a hole's rim is not an edge)."""
-    geo = fill_holes(frame).astype(np.float32)
-    jump = np.zeros(frame.shape, bool)
-    jump[1:] |= np.abs(np.diff(geo, axis=0)) > EDGE_MM_PER_PX
-    jump[:, 1:] |= np.abs(np.diff(geo, axis=1)) > EDGE_MM_PER_PX
-    return ndimage.binary_dilation(jump, iterations=EDGE_BAND_PX)
 
 
 def _edge_rates(frames: np.ndarray) -> tuple[float, float]:

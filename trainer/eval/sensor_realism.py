@@ -16,7 +16,7 @@ the clean frames and set beside the sensor's on three counts:
 
 Episodes alternate between the reference half (even) and the judged half (odd), so no view is both judged and
 referenced. The sources: ``gt``, ``randnoise``, each DDG with and without grafting, each residual diffusion
-(and its stage I alone when it has a stage II).
+(and its stage I alone when it has a stage II, and its output edge-grafted).
 """
 
 from __future__ import annotations
@@ -31,11 +31,11 @@ import torch
 from runtime.preprocess import DepthSpec
 from trainer.dataset import DatasetError, DemoStore
 from trainer.ddg.baselines import DEFAULT_MODEL, randnoise
+from trainer.ddg.graft import edge_band, graft_edges
 from trainer.ddg.model import load_config
 from trainer.ddg.residual import ResidualGenerator, stage_dirs
 from trainer.ddg.sample import Generator, generate_frames
 
-from .holes import edge_band
 from .judge import RandomEncoder, features, fid, kid
 from .paired_depth import hole_agreement, policy_range
 from .realism import bootstrap_ci
@@ -151,6 +151,7 @@ def _sources(cfg: VsSensorConfig, clean: np.ndarray, spec: DepthSpec) -> dict[st
             gen = ResidualGenerator(model, steps=cfg.steps, seed=cfg.seed, threads=cfg.threads, stages=k)
             label = f"{name} stage {'I' * k}"
             out[label] = generate_frames(gen, clean, label)
+        out[f"{name} edge-grafted"] = graft_edges(clean, out[label])  # the last stage's
     return out
 
 
