@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# A row of the table from a generated depth source (issue 45, docs/table2.md), not the test sensor's. The ceiling's
+# round 0 (research/sensor_dagger.sh: 80 expert episodes on the training kinds, seeds 50000..; the expert reads no
+# depth, so its states are any source's) is copied and given the source's frames, made from its clean ones
+# (`trainer ddg generate --generator G --steps 5`; SOURCE ddg: DDG (a) grafted, residual_edges: the residual
+# diffusion kept near the depth edges). The shipped first readout is refitted 400 steps on them, with W > 0 the
+# shipped clean-depth readout as its feature teacher on the clean frames of the same steps (`--teacher-loss W`),
+# composed with M0 and exported as c{teachW|plain}; read against the ceiling's round 3 readout on its held-out
+# learner approaches (the gate), then CELL=1 runs a 180-episode seen-kind cell under stereo. Every stage is resumed
+# (research/sensor_stages.sh).
+#
+#   research/generated_row.sh SOURCE [W]   # env: CELL=1, WORKERS (2)
+set -euo pipefail
+SOURCE=${1:?usage: research/generated_row.sh ddg|residual|residual_edges [W]}
+W=${2:-0}
+NAME=row_$SOURCE
+source "$(dirname "$0")/sensor_stages.sh"
+C=$R/table2/ceiling
+generator=${SOURCE%_nograft}  # the DDG makes ddg and ddg_nograft together
+
+recover_shipped
+if [[ ! -f $D/round0.zarr.done ]]; then
+    [[ -f $C/round0.zarr.done ]] || { echo "error: $C/round0.zarr is incomplete: run research/sensor_dagger.sh 0" >&2
+        exit 2; }
+    if [[ ! -d $D/round0.zarr ]]; then
+        rm -rf "$D/round0.part.zarr"
+        cp -r "$C/round0.zarr" "$D/round0.part.zarr" && mv "$D/round0.part.zarr" "$D/round0.zarr"
+    fi
+    log "$SOURCE frames of $D/round0.zarr"
+    python -m trainer ddg generate --generator "$generator" --demos "$D/round0.zarr" --steps 5 --threads 2
+    touch "$D/round0.zarr.done"
+fi
+name=plain
+if [[ $W != 0 ]]; then
+    name=teach$W
+    export TEACHER=$K/student.pt TEACHER_LOSS=$W
+fi
+SOURCE=$SOURCE fit "$name" "$K/student.pt" "$D/round0.zarr"
+out=$R/table2/low_hand/c3_vs_${NAME}_${name}_approach_heldout.json
+[[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$C/c3/student.pt" "$C/approach_heldout.zarr" \
+    --versus "$D/c$name/student.pt" --out "$out" > /dev/null
+[[ ${CELL:-0} == 1 ]] && cell "$name"
+log "done: $D/c$name (gate: $out)"
