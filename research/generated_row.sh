@@ -20,8 +20,7 @@ generator=${SOURCE%_nograft}  # the DDG makes ddg and ddg_nograft together
 
 recover_shipped
 if [[ ! -f $D/round0.zarr.done ]]; then
-    [[ -f $C/round0.zarr.done ]] || { echo "error: $C/round0.zarr is incomplete: run research/sensor_dagger.sh 0" >&2
-        exit 2; }
+    need "$C/round0.zarr" "research/sensor_dagger.sh 0"
     if [[ ! -d $D/round0.zarr ]]; then
         rm -rf "$D/round0.part.zarr"
         cp -r "$C/round0.zarr" "$D/round0.part.zarr" && mv "$D/round0.part.zarr" "$D/round0.zarr"
@@ -35,7 +34,7 @@ if [[ $W != 0 ]]; then
     name=teach$W
     export TEACHER=$K/student.pt TEACHER_LOSS=$W
 fi
-SOURCE=$SOURCE fit "$name" "$K/student.pt" "$D/round0.zarr"
+fit "$name" "$K/student.pt" "$D/round0.zarr"  # fit reads the $SOURCE frames
 out=$R/table2/low_hand/c3_vs_${NAME}_${name}_approach_heldout.json
 [[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$C/c3/student.pt" "$C/approach_heldout.zarr" \
     --versus "$D/c$name/student.pt" --out "$out" > /dev/null
