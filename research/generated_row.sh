@@ -6,7 +6,7 @@
 # diffusion kept near the depth edges). The shipped first readout is refitted 400 steps on them, with W > 0 the
 # shipped clean-depth readout as its feature teacher on the clean frames of the same steps (`--teacher-loss W`),
 # composed with M0 and exported as c{teachW|plain}; read against the ceiling's round 3 readout on its held-out
-# learner approaches (the gate), then CELL=1 runs a 180-episode seen-kind cell under stereo. Every stage is resumed
+# learner approaches (the gate, where the ceiling is built), then CELL=1 runs a 180-episode seen-kind cell under stereo. Every stage is resumed
 # (research/sensor_stages.sh).
 #
 #   research/generated_row.sh SOURCE [W]   # env: CELL=1, WORKERS (2)
@@ -16,11 +16,12 @@ W=${2:-0}
 NAME=row_$SOURCE
 source "$(dirname "$0")/sensor_stages.sh"
 C=$R/table2/ceiling
+mkdir -p "$C"
 generator=${SOURCE%_nograft}  # the DDG makes ddg and ddg_nograft together
 
 recover_shipped
 if [[ ! -f $D/round0.zarr.done ]]; then
-    need "$C/round0.zarr" "research/sensor_dagger.sh 0"
+    collect "$C/round0.zarr" 80 50000  # the ceiling's round 0, as research/sensor_dagger.sh collects it
     if [[ ! -d $D/round0.zarr ]]; then
         rm -rf "$D/round0.part.zarr"
         cp -r "$C/round0.zarr" "$D/round0.part.zarr" && mv "$D/round0.part.zarr" "$D/round0.zarr"
@@ -36,7 +37,12 @@ if [[ $W != 0 ]]; then
 fi
 fit "$name" "$K/student.pt" "$D/round0.zarr"  # fit reads the $SOURCE frames
 out=$R/table2/low_hand/c3_vs_${NAME}_${name}_approach_heldout.json
-[[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$C/c3/student.pt" "$C/approach_heldout.zarr" \
-    --versus "$D/c$name/student.pt" --out "$out" > /dev/null
+if [[ -f $out ]]; then :
+elif [[ -f $C/c3/student.pt && -f $C/approach_heldout.zarr.done ]]; then
+    PYTHONPATH=. python research/low_hand_readout.py "$C/c3/student.pt" "$C/approach_heldout.zarr" \
+        --versus "$D/c$name/student.pt" --out "$out" > /dev/null
+else
+    out="skipped: the ceiling's round 3 or held-out approaches are not built (research/sensor_dagger.sh 3)"
+fi
 [[ ${CELL:-0} == 1 ]] && cell "$name"
 log "done: $D/c$name (gate: $out)"
