@@ -57,7 +57,8 @@ def _scripted(_: str) -> Policy:
 
 def _reactive(bias: str) -> Policy:
     """The scripted planner with its phase read off each observation (no memory a student cannot see);
-    ``reactive:B``: the same reading the object B cm off (``aim_bias``), the grasp's own tolerance."""
+    ``reactive:B``: the same reading the object B cm off (``trainer.teacher.scripted.aim_bias``), the grasp's
+    own tolerance."""
     from trainer.teacher.scripted import BiasedExpert, ReactiveExpert
 
     bias_m = aim_bias_m(f"reactive:{bias}", bias)
@@ -70,14 +71,6 @@ def aim_bias_m(spec: str, bias: str) -> float:
         return float(bias) / 100 if bias else 0.0
     except ValueError:
         raise PolicyError(f"{spec}: the bias is centimetres, e.g. reactive:1.0 or oracle:CKPT@0.5") from None
-
-
-def aim_bias(rng: np.random.Generator, bias_m: float) -> np.ndarray:
-    """The constant horizontal error, ``bias_m`` long, of a biased policy's reading of where the object is,
-    in a direction drawn from ``rng``: the episode's own, fresh from its seed, so every kind of biased policy
-    errs the same way in the same episode and their tolerance cells pair."""
-    angle = rng.uniform(0, 2 * np.pi)
-    return bias_m * np.array([np.cos(angle), np.sin(angle), 0.0])
 
 
 def _lazy(module: str, kind: str) -> Callable[[str], Policy]:

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from hil_sim.kinematics import ArmKinematics
-from trainer.policies import PolicyError, aim_bias, make_policy
+from trainer.policies import PolicyError, make_policy
 from trainer.sim.env import OBJECT_POSITION, OBJECT_QUAT, EnvConfig, GraspEnv
 from trainer.sim.rollout import Job, run_episode
 from trainer.teacher.ppo import TeacherConfig
-from trainer.teacher.scripted import Phase, ReactiveExpert, fingers_yaw, nearest_turn
+from trainer.teacher.scripted import Phase, ReactiveExpert, aim_bias, fingers_yaw, nearest_turn
 from trainer.teacher.warmstart import labelled_episode
 
 

@@ -17,11 +17,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from trainer.policies import Observation, PolicyError, aim_bias, aim_bias_m
+from trainer.policies import Observation, PolicyError, aim_bias_m
 from trainer.sim.labels import OFFSET, facts
 from trainer.student import checkpoint
 from trainer.student.ddim import ddim_plan, denoise
 from trainer.student.onnx_policy import to_env_actions
+from trainer.teacher.scripted import aim_bias
 
 DDIM_STEPS = 4
 """The exported students' default (``python -m export --ddim-steps``)."""

@@ -21,7 +21,6 @@ import numpy as np
 
 from hil_sim.kinematics import ArmKinematics, rotation_error
 from hil_sim.world import TABLE_Z
-from trainer.policies import aim_bias
 from trainer.sim.env import FINGER_VELOCITIES, FINGERS, GRIPPER_COMMAND, OBJECT_POSITION, OBJECT_QUAT
 
 _Goal = tuple[np.ndarray, np.ndarray, float]
@@ -194,9 +193,17 @@ class ReactiveExpert(ScriptedExpert):
         return grasp + [0.0, 0.0, c.approach_height_m * min(1.0, misalignment)], rot_goal, -1.0
 
 
+def aim_bias(rng: np.random.Generator, bias_m: float) -> np.ndarray:
+    """The constant horizontal error, ``bias_m`` long, of a biased policy's reading of where the object is,
+    in a direction drawn from ``rng``: the episode's own, fresh from its seed, so every kind of biased policy
+    errs the same way in the same episode and their tolerance cells pair."""
+    angle = rng.uniform(0, 2 * np.pi)
+    return bias_m * np.array([np.cos(angle), np.sin(angle), 0.0])
+
+
 class BiasedExpert(ReactiveExpert):
     """``ReactiveExpert`` reading the object ``bias_m`` off, in a horizontal direction drawn per episode
-    (``trainer.policies.aim_bias``): how far off a grasp may be aimed before it fails, the expert's own
+    (``aim_bias``): how far off a grasp may be aimed before it fails, the expert's own
     tolerance beside the head's (``oracle:CKPT@B``). Never a labeller."""
 
     def __init__(self, bias_m: float) -> None:
