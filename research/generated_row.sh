@@ -6,8 +6,8 @@
 # diffusion kept near the depth edges). The shipped first readout is refitted 400 steps on them, with W > 0 the
 # shipped clean-depth readout as its feature teacher on the clean frames of the same steps (`--teacher-loss W`),
 # composed with M0 and exported as c{teachW|plain}; read against the ceiling's round 3 readout on its held-out
-# learner approaches (the gate, where the ceiling is built), then CELL=1 runs a 180-episode seen-kind cell under stereo. Every stage is resumed
-# (research/sensor_stages.sh).
+# learner approaches (the gate, where the ceiling is built), then CELL=1 runs a 180-episode seen-kind cell under
+# stereo. Every stage is resumed (research/sensor_stages.sh); the ceiling's round 0 is collected if missing.
 #
 #   research/generated_row.sh SOURCE [W]   # env: CELL=1, WORKERS (2)
 set -euo pipefail
