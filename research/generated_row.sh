@@ -21,7 +21,7 @@ generator=${SOURCE%_nograft}  # the DDG makes ddg and ddg_nograft together
 
 recover_shipped
 if [[ ! -f $D/round0.zarr.done ]]; then
-    collect "$C/round0.zarr" 80 50000  # the ceiling's round 0, as research/sensor_dagger.sh collects it
+    expert_round0 "$C/round0.zarr"  # the ceiling's, shared with research/sensor_dagger.sh
     if [[ ! -d $D/round0.zarr ]]; then
         rm -rf "$D/round0.part.zarr"
         cp -r "$C/round0.zarr" "$D/round0.part.zarr" && mv "$D/round0.part.zarr" "$D/round0.zarr"

@@ -19,7 +19,7 @@ CELLS=${CELLS-"2 3"}
 source "$(dirname "$0")/sensor_stages.sh"
 
 recover_shipped
-collect "$D/round0.zarr" 80 50000
+expert_round0 "$D/round0.zarr"
 stores=("$D/round0.zarr")
 fit 0 "$K/student.pt" "${stores[@]}"
 for ((r = 1; r <= ROUNDS; r++)); do

@@ -45,6 +45,11 @@ collect() {
     touch "$store.done"
 }
 
+# expert_round0 STORE: round 0 of every chain, the expert's 80 episodes on the training kinds, seeds 50000...
+expert_round0() {
+    collect "$1" 80 50000
+}
+
 # fit ROUND INIT STORES...: INIT's first readout refitted 400 steps on the stores' SOURCE frames (default sensor: what
 # the learner saw; ddg: `trainer ddg generate`'s), composed with M0, exported; with TEACHER (a clean-depth student) and
 # TEACHER_LOSS (its weight), its features of the clean frames teach the readout's.
