@@ -7,12 +7,18 @@
 # shipped clean-depth readout as its feature teacher on the clean frames of the same steps (`--teacher-loss W`),
 # composed with M0 and exported as c{teachW|plain}; read against the ceiling's round 3 readout on its held-out
 # learner approaches (the gate, where the ceiling is built), then CELL=1 runs a 180-episode seen-kind cell under
-# stereo. Every stage is resumed (research/sensor_stages.sh); the ceiling's round 0 is collected if missing.
+# stereo. With ROUNDS > 0, DAgger on the source before the gate: round r's learner (the last readout composed
+# with M0) drives EPISODES (40) episodes with the source as its sensor (`--sensor SOURCE:steps=5`, beta 0.5^r,
+# seeds 52000 + 1000 (r - 1)..), whose frames the store keeps, and the last readout is refitted 400 steps more on
+# every round's source frames (c{name}r{r}). Every stage is resumed (research/sensor_stages.sh); the ceiling's
+# round 0 is collected if missing.
 #
-#   research/generated_row.sh SOURCE [W]   # env: CELL=1, WORKERS (2)
+#   research/generated_row.sh SOURCE [W [ROUNDS]]   # env: CELL=1, WORKERS (2), EPISODES (40)
 set -euo pipefail
-SOURCE=${1:?usage: research/generated_row.sh ddg|residual|residual_edges [W]}
+SOURCE=${1:?usage: research/generated_row.sh ddg|residual|residual_edges [W [ROUNDS]]}
 W=${2:-0}
+ROUNDS=${3:-0}
+EPISODES=${EPISODES:-40}  # not 150: every frame the learner sees is generated (residual_edges: ~1.8 s a worker)
 NAME=row_$SOURCE
 source "$(dirname "$0")/sensor_stages.sh"
 C=$R/table2/ceiling
@@ -36,6 +42,13 @@ if [[ $W != 0 ]]; then
     export TEACHER=$K/student.pt TEACHER_LOSS=$W
 fi
 fit "$name" "$K/student.pt" "$D/round0.zarr"  # fit reads the $SOURCE frames
+stores=("$D/round0.zarr")
+base=$name
+for ((r = 1; r <= ROUNDS; r++)); do
+    prev=$name
+    name=${base}r$r
+    SENSOR=$SOURCE:steps=5 dagger_round "$name" "$prev" $((52000 + 1000 * (r - 1))) "$(python -c "print(0.5 ** $r)")"
+done
 out=$R/table2/low_hand/c3_vs_${NAME}_${name}_approach_heldout.json
 if [[ -f $out ]]; then :
 elif [[ -f $C/c3/student.pt && -f $C/approach_heldout.zarr.done ]]; then

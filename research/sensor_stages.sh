@@ -1,5 +1,6 @@
 # The stages of a depth readout's rounds under one depth source (issue 45), sourced by research/sensor_dagger.sh
-# and the other research/*_readout.sh. Env: SENSOR (stereo), NAME (ceiling), WORKERS (2: simulation processes).
+# and the other research/*_readout.sh. Env: SENSOR (stereo), NAME (ceiling), WORKERS (2: simulation processes),
+# EPISODES (150: a DAgger round's).
 #
 # Every stage leaves its output under $DIFFUDEPGRASP_HOME/table2/$NAME (the project's home for long-lived artifacts,
 # default ~/.cache/diffudepgrasp, as trainer.student.recipe.default_home) and is skipped when that output is there:
@@ -66,12 +67,12 @@ fit() {
     python -m export "$D/c$round/student.pt" --ddim-steps 4 --out "$onnx"
 }
 
-# dagger_round ROUND PREV SEED BETA: round PREV's composed learner drives 150 episodes under $SENSOR (DAgger: a
+# dagger_round ROUND PREV SEED BETA: round PREV's composed learner drives $EPISODES under $SENSOR (DAgger: a
 # step executes the expert's action with probability BETA) into round ROUND's store, added to the array `stores`;
 # PREV's readout is refitted on all of them.
 dagger_round() {
     local round=$1 prev=$2 seed=$3 beta=$4
-    collect "$D/round$round.zarr" 150 "$seed" "student:$D/c$prev/student.onnx" "$beta"
+    collect "$D/round$round.zarr" "${EPISODES:-150}" "$seed" "student:$D/c$prev/student.onnx" "$beta"
     stores+=("$D/round$round.zarr")
     fit "$round" "$D/fit$prev/ckpt.pt" "${stores[@]}"
 }

@@ -6,7 +6,8 @@ Layout (names are a contract):
     data/action  float32 [N, 8]        env action: 7 deltas in [-1, 1] before the scale s, gripper -1/+1
     data/rgb     uint8   [N, 96, 128, 3]  optional, same crop and resize as depth
     data/depth_sensor  uint16 [N, 96, 128]  optional: what the sensor ``attrs["sensor"]`` (e.g. stereo)
-                       showed the policy at that step, as the policy sees it (``collect --sensor``)
+                       showed the policy at that step, as the policy sees it (``collect --sensor``); under
+                       a generated source's sensor (e.g. ``residual_edges:steps=5``) that source's frames
     data/labels  float32 [N, 12]       optional: the frame's privileged perception labels (trainer.sim.labels)
     data/chunk   float32 [N, Hc, 8]    optional, with labels: the expert's next Hc actions from the step's
                        state (its label of a state a learner reached: ``trainer.student.dagger``); Hc = attrs
@@ -303,7 +304,13 @@ class DemoStore:
     @property
     def depth_sources(self) -> list[str]:
         """The depth sources whose array this store holds (generated ones possibly unfinished)."""
-        return [name for name, source in DEPTH_SOURCES.items() if source.array in self.root]
+        return [name for name in DEPTH_SOURCES if self._array(name) in self.root]
+
+    def _array(self, source: str) -> str:
+        """Where ``source``'s frames are: a store collected under the source as its sensor (a DAgger round
+        that drove on them) holds them as the sensor's frames, not as a generator's."""
+        sensor = str(self.attrs.get("sensor", "")).split(":")[0]
+        return DEPTH_SOURCES["sensor" if source == sensor and generator_of(source) else source].array
 
     def depth(self, source: str, steps: int) -> np.ndarray:
         """The first ``steps`` frames of depth ``source`` (``check_depth``)."""
@@ -314,14 +321,14 @@ class DemoStore:
         first ``steps`` frames yet (chunks no shard has reached are zeros)."""
         if source not in DEPTH_SOURCES:
             raise DatasetError(f"unknown depth source {source!r}; choose one of {sorted(DEPTH_SOURCES)}")
-        array = DEPTH_SOURCES[source].array
+        array = self._array(source)
         if array not in self.root:
             held, maker = ", ".join(self.depth_sources), DEPTH_SOURCES[source]
             made_by = maker.labelled_by if maker.labelled_by and "data/labels" in self.root else maker.made_by
             raise DatasetError(f"{self.path} has no {array} for depth source {source!r} (make it with "
                                f"`{made_by}`); it holds {held}")
         generator = generator_of(source)
-        if generator and _done(generator) in self.root:
+        if generator and array != DEPTH_SOURCES["sensor"].array and _done(generator) in self.root:
             self._check_generated(generator, array, steps)
         return array
 

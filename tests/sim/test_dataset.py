@@ -166,6 +166,32 @@ def test_a_store_names_the_command_that_makes_a_depth_source_it_lacks(tmp_path) 
         store.depth("ddg", 4)
 
 
+def test_a_store_that_drove_on_a_generated_source_holds_that_sources_frames_as_its_sensors(tmp_path) -> None:
+    """A DAgger round under ``--sensor residual_edges:steps=5`` keeps what the learner saw as
+    data/depth_sensor; a fit on ``residual_edges`` frames reads those, as it reads a generator's array in an
+    expert's store."""
+    from trainer.student.steps import _frames
+
+    drove = DemoStore.create(tmp_path / "drove.zarr", spec=DepthSpec(), action_scale=0.05,
+                             control_rate_hz=10.0, sensor="residual_edges:steps=5")
+    episode = _episode(3, 0)
+    drove.append(dataclasses.replace(episode, depth_sensor=episode.depth // 3))
+    assert drove.depth_sources == ["gt", "randnoise", "sensor", "residual_edges"]
+    np.testing.assert_array_equal(drove.depth("residual_edges", 3), episode.depth // 3)
+    with pytest.raises(DatasetError, match="no data/depth_residual for depth source 'residual'"):
+        drove.depth("residual", 3)  # the residual diffusion without the edge graft is another source
+    expert = _create(tmp_path / "expert.zarr")
+    expert.append(_episode(5, 1))
+    settings = {"model": "m", "steps": 5, "seed": 0, "chunk": 8}
+    outs, done = expert.generation_outputs("residual_edges", settings, chunk=8)
+    outs["residual_edges"][:] = expert.root["data/depth"][:] + 1
+    done[:] = True
+    both = _frames([expert, drove], None, "residual_edges")
+    np.testing.assert_array_equal(both, np.concatenate([_episode(5, 1).depth + 1, episode.depth // 3]))
+    np.testing.assert_array_equal(_frames([expert, drove], None, "gt"),
+                                  np.concatenate([_episode(5, 1).depth, episode.depth]))
+
+
 def test_generated_depth_grows_with_the_store_and_makes_its_partial_chunk_again(tmp_path) -> None:
     store = _create(tmp_path / "d.zarr")
     store.append(_episode(6, 0))

@@ -86,7 +86,7 @@ class LabelledSteps:
         if len(scales) > 1:
             raise StepsError(f"{paths} mix depth scales {sorted(scales)}")
         spill = paths[0].parent if self.device.type == "cpu" else None  # a GPU copy frees the host's at once
-        held = [torch.from_numpy(_frames(stores, spill, STORED[source]).view(np.int16)).to(self.device)
+        held = [torch.from_numpy(_frames(stores, spill, source).view(np.int16)).to(self.device)
                 for source in (sources if depth else [])]
         self.frames = held[0] if held else None
         self.teacher_frames = held[1] if len(held) > 1 else None
@@ -130,22 +130,23 @@ class LabelledSteps:
         return self.normalised[sensor]
 
 
-def _frames(stores: list[DemoStore], folder: Path | None, array: str = "data/depth") -> np.ndarray:
-    """Every store's ``array`` frames in one uint16 array [steps, H, W], filled a zarr chunk at a time; with a
-    ``folder``, into a file there that is unlinked at once (the space comes back when the array goes, even if
-    the process is killed), else in memory. Nothing is held twice: per-store copies joined by
-    ``np.concatenate`` were, and a 192 x 144 recipe's round-5 fit (250k frames, 14 GB) was killed for it on a
-    24 GiB machine."""
+def _frames(stores: list[DemoStore], folder: Path | None, source: str) -> np.ndarray:
+    """Every store's frames of depth ``source`` (``DemoStore.check_depth``) in one uint16 array [steps, H, W],
+    filled a zarr chunk at a time; with a ``folder``, into a file there that is unlinked at once (the space
+    comes back when the array goes, even if the process is killed), else in memory. Nothing is held twice:
+    per-store copies joined by ``np.concatenate`` were, and a 192 x 144 recipe's round-5 fit (250k frames, 14
+    GB) was killed for it on a 24 GiB machine."""
+    arrays = [store.root[store.check_depth(source, store.n_steps)] for store in stores]
     steps = sum(store.n_steps for store in stores)
-    shape = (steps, *stores[0].root[array].shape[1:])
+    shape = (steps, *arrays[0].shape[1:])
     if folder is None:
         out = np.empty(shape, np.uint16)
     else:
         with tempfile.TemporaryFile(dir=folder, prefix="frames-") as file:
             out = np.memmap(file, np.uint16, "w+", shape=shape)  # the mapping keeps the unlinked file alive
     at = 0
-    for store in stores:
-        depth, n = store.root[array], store.n_steps
+    for store, depth in zip(stores, arrays, strict=True):
+        n = store.n_steps
         for i in range(0, n, depth.chunks[0]):
             j = min(i + depth.chunks[0], n)
             out[at + i:at + j] = depth[i:j]
