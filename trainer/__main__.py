@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import sys
 
 from trainer.menu import Menu
@@ -19,5 +20,13 @@ MENU = Menu("python -m trainer", {
 })
 main = MENU.main
 
+
+def _stop(signum: int, frame) -> None:
+    """SIGTERM (``kill``, a scheduler's stop) ends a command as Ctrl-C does, not at once: Python's exit then
+    terminates its worker pool, which a bare SIGTERM leaves running, orphaned, on the next job's cores."""
+    raise KeyboardInterrupt
+
+
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, _stop)
     sys.exit(main())

@@ -1,4 +1,5 @@
-"""``python -m trainer collect`` on tiny budgets: outputs, resume, kill -9, bad input; the command menu."""
+"""``python -m trainer collect`` on tiny budgets: outputs, resume, kill -9, SIGTERM, bad input; the command
+menu."""
 
 from __future__ import annotations
 
@@ -41,6 +42,14 @@ def left_half_lost(_arg: str):
         out = depth.copy()
         out[..., : depth.shape[-1] // 2] = 0
         return out
+    return sensor
+
+
+def stuck(_arg: str):
+    """A sensor that never returns a frame in a test's time (``tests.sim.test_cli:stuck``)."""
+    def sensor(depth: np.ndarray) -> np.ndarray:
+        time.sleep(600)
+        return depth
     return sensor
 
 
@@ -140,3 +149,36 @@ def test_killed_collection_keeps_whole_episodes(tmp_path) -> None:
     assert store.root["data/action"].shape[0] == ends[-1] == store.root["data/state"].shape[0]
     for i in range(n):
         assert store.episode(i)["kind"] == "cube"
+
+
+def _alive(pid: int) -> bool:
+    """``pid`` runs (a zombie has ended: only its exit status is left to collect)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+
+
+@pytest.mark.slow
+def test_a_stopped_command_stops_its_workers(tmp_path) -> None:
+    """``kill PID`` of a collection with --workers 2 ends its worker processes too: a bare SIGTERM left them
+    collecting for a parent that was gone, at the cost of every later job on the machine."""
+    cmd = [sys.executable, "-m", "trainer", "collect", "--episodes", "4", "--out", str(tmp_path / "d.zarr"),
+           "--workers", "2", "--objects", "cube", "--sensor", "tests.sim.test_cli:stuck"]
+    proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "PYTHONPATH": str(REPO)})
+    try:
+        deadline, children = time.monotonic() + 120, []
+        while time.monotonic() < deadline and len(children) < 3:  # two workers, multiprocessing's tracker
+            time.sleep(0.5)
+            children = Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()
+        children = [int(c) for c in children]
+        time.sleep(10)  # the workers inside their first episode
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=60) != 0
+    finally:
+        proc.kill()
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and any(map(_alive, children)):
+        time.sleep(0.5)
+    assert not any(map(_alive, children))
