@@ -143,8 +143,6 @@ def _edge_map(depth_mm: np.ndarray, grad_mm: float) -> np.ndarray:
     return np.maximum(gx, gy) > grad_mm
 
 
-
-
 class SeededSource:
     """A depth source as an evaluation sensor (``trainer.sim.sensors.SeededSensor``): its draws come from a
     generator that each episode restarts from its seed."""
