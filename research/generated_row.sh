@@ -18,7 +18,7 @@ set -euo pipefail
 SOURCE=${1:?usage: research/generated_row.sh ddg|residual|residual_edges [W [ROUNDS]]}
 W=${2:-0}
 ROUNDS=${3:-0}
-EPISODES=${EPISODES:-40}  # not 150: every frame the learner sees is generated (residual_edges: ~1.8 s a worker)
+EPISODES=${EPISODES:-40}  # not 150: every frame the learner sees is generated (residual_edges: 1.4 a second)
 NAME=row_$SOURCE
 source "$(dirname "$0")/sensor_stages.sh"
 C=$R/table2/ceiling
