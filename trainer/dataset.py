@@ -328,7 +328,7 @@ class DemoStore:
             raise DatasetError(f"{self.path} has no {array} for depth source {source!r} (make it with "
                                f"`{made_by}`); it holds {held}")
         generator = generator_of(source)
-        if generator and array != DEPTH_SOURCES["sensor"].array and _done(generator) in self.root:
+        if generator and array == DEPTH_SOURCES[source].array and _done(generator) in self.root:
             self._check_generated(generator, array, steps)
         return array
 
