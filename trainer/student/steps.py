@@ -27,7 +27,7 @@ class StepsError(ValueError):
     """Stores the recipe cannot train on (no labels, another resolution, no frames of the depth asked)."""
 
 
-STORED = {source: DEPTH_SOURCES[source].array for source in DEPTH_SOURCES if source != "randnoise"}
+STORED = tuple(source for source in DEPTH_SOURCES if source != "randnoise")
 """The depth sources a fit reads as stored: the clean frames, those a sensor showed the learner, or a
 generator's made from the clean ones (``trainer ddg generate``)."""
 
