@@ -68,15 +68,15 @@ def main() -> None:
     cfg = net.config
     store = DemoStore.open(args.store)
     generated = [s for s in store.depth_sources if generator_of(s)] if args.generated else []
-    steps = {src: LabelledSteps([args.store], cfg.obs_horizon, cfg.action_horizon, depth=True, chunks=False,
-                                depth_source=src) for src in ("sensor", "gt", *generated)}
-    frames_of = {src: s.frames.numpy().view(np.uint16).copy() for src, s in steps.items()}
+    steps = LabelledSteps([args.store], cfg.obs_horizon, cfg.action_horizon, depth=True, chunks=False)
+    # one store's steps hold its frames in store order: each source's array is read as is, not labelled anew
+    frames_of = {src: store.depth(src, store.n_steps) for src in ("sensor", "gt", *generated)}
     stereo, clean = frames_of["sensor"], frames_of["gt"]
     result = {"checkpoint": str(args.checkpoint), "store": str(args.store),
               "sensor": sensor_error(stereo, clean)}
-    labels = steps["gt"].labels_np[:, :READOUT]
+    labels = steps.labels_np[:, :READOUT]
     for name, frames in {**variants(stereo, clean), **{s: frames_of[s] for s in generated}}.items():
-        err = errors(read(net, steps["gt"], frames), labels, store.episode_ends)
+        err = errors(read(net, steps, frames), labels, store.episode_ends)
         result[name] = {**{k: err["near"][k] for k in ("offset_cm_median", "offset_cm_p90", "bias_cm_median",
                                                        "bias_cm_p90")},
                         "every_frame_cm_p90": err["all"]["offset_cm_p90"]}  # the gate's second figure
