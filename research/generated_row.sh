@@ -2,24 +2,28 @@
 # A row of the table from a generated depth source (issue 45, docs/table2.md), not the test sensor's. The ceiling's
 # round 0 (research/sensor_dagger.sh: 80 expert episodes on the training kinds, seeds 50000..; the expert reads no
 # depth, so its states are any source's) is copied and given the source's frames, made from its clean ones
-# (`trainer ddg generate --generator G --steps 5`; SOURCE ddg: DDG (a) grafted, residual_edges: the residual
+# (`trainer ddg generate --generator G --steps STEPS`; SOURCE ddg: DDG (a) grafted, residual_edges: the residual
 # diffusion kept near the depth edges). The shipped first readout is refitted 400 steps on them, with W > 0 the
 # shipped clean-depth readout as its feature teacher on the clean frames of the same steps (`--teacher-loss W`),
 # composed with M0 and exported as c{teachW|plain}; read against the ceiling's round 3 readout on its held-out
 # learner approaches (the gate, where the ceiling is built), then CELL=1 runs a 180-episode seen-kind cell under
 # stereo. With ROUNDS > 0, DAgger on the source before the gate: round r's learner (the last readout composed
-# with M0) drives EPISODES (40) episodes with the source as its sensor (`--sensor SOURCE:steps=5`, beta 0.5^r,
+# with M0) drives EPISODES (40) episodes with the source as its sensor (`--sensor SOURCE:steps=STEPS`, beta 0.5^r,
 # seeds 52000 + 1000 (r - 1)..), whose frames the store keeps, and the last readout is refitted 400 steps more on
 # every round's source frames (c{name}r{r}). Every stage is resumed (research/sensor_stages.sh); the ceiling's
 # round 0 is collected if missing.
 #
-#   research/generated_row.sh SOURCE [W [ROUNDS]]   # env: CELL=1, WORKERS (2), EPISODES (40)
+# STEPS (5) is the generator's DDIM steps; another count is another source, kept apart as row_SOURCE_sSTEPS.
+#
+#   research/generated_row.sh SOURCE [W [ROUNDS]]   # env: CELL=1, WORKERS (2), EPISODES (40), STEPS (5)
 set -euo pipefail
 SOURCE=${1:?usage: research/generated_row.sh ddg|residual|residual_edges [W [ROUNDS]]}
 W=${2:-0}
 ROUNDS=${3:-0}
 EPISODES=${EPISODES:-40}  # not 150: every frame the learner sees is generated (residual_edges: 1.4 a second)
+STEPS=${STEPS:-5}
 NAME=row_$SOURCE
+[[ $STEPS == 5 ]] || NAME=${NAME}_s$STEPS
 source "$(dirname "$0")/sensor_stages.sh"
 C=$R/table2/ceiling
 mkdir -p "$C"
@@ -33,7 +37,7 @@ if [[ ! -f $D/round0.zarr.done ]]; then
         cp -r "$C/round0.zarr" "$D/round0.part.zarr" && mv "$D/round0.part.zarr" "$D/round0.zarr"
     fi
     log "$SOURCE frames of $D/round0.zarr"
-    python -m trainer ddg generate --generator "$generator" --demos "$D/round0.zarr" --steps 5 --threads 2
+    python -m trainer ddg generate --generator "$generator" --demos "$D/round0.zarr" --steps "$STEPS" --threads 2
     touch "$D/round0.zarr.done"
 fi
 name=plain
@@ -47,7 +51,7 @@ base=$name
 for ((r = 1; r <= ROUNDS; r++)); do
     prev=$name
     name=${base}r$r
-    SENSOR=$SOURCE:steps=5 dagger_round "$name" "$prev" $((52000 + 1000 * (r - 1))) "$(python -c "print(0.5 ** $r)")"
+    SENSOR=$SOURCE:steps=$STEPS dagger_round "$name" "$prev" $((52000 + 1000 * (r - 1))) "$(python -c "print(0.5 ** $r)")"
 done
 out=$R/table2/low_hand/c3_vs_${NAME}_${name}_approach_heldout.json
 if [[ -f $out ]]; then :
