@@ -23,6 +23,8 @@ import numpy as np
 
 from runtime.preprocess import restore_holes
 
+from .graft import depth_steps
+
 DepthSource = Callable[[np.ndarray, np.random.Generator], np.ndarray]
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "ddg"
@@ -59,7 +61,7 @@ def randnoise(depth_mm: np.ndarray, rng: np.random.Generator, cfg: RandNoiseConf
     sigma = cfg.sigma_mm + cfg.sigma_quad_mm * (z / 1000.0) ** 2
     noisy = np.clip(np.rint(z + rng.standard_normal(z.shape, np.float32) * sigma), 1, 65535)
     holes = (depth_mm == 0) | (rng.random(z.shape) < rng.uniform(0, cfg.dropout_max))
-    holes |= (_edge_map(depth_mm, cfg.edge_grad_mm) & (rng.random(z.shape) < cfg.edge_drop))
+    holes |= (depth_steps(depth_mm, cfg.edge_grad_mm) & (rng.random(z.shape) < cfg.edge_drop))
     for _ in range(rng.poisson(cfg.blobs_mean)):
         centre = (int(rng.integers(0, z.shape[1])), int(rng.integers(0, z.shape[0])))
         axes = (int(rng.integers(2, 7)), int(rng.integers(2, 7)))
@@ -135,12 +137,6 @@ def get_source(name: str, model: str | Path | None = None, steps: int = 10) -> D
     if name not in SOURCES:
         raise UnknownSourceError(f"unknown depth source {name!r}; choose one of {sorted(SOURCES)}")
     return SOURCES[name](**({"model": model} if model else {}), steps=steps)
-
-
-def _edge_map(depth_mm: np.ndarray, grad_mm: float) -> np.ndarray:
-    z = depth_mm.astype(np.float32)
-    gy, gx = np.abs(np.diff(z, axis=0, prepend=z[:1])), np.abs(np.diff(z, axis=1, prepend=z[:, :1]))
-    return np.maximum(gx, gy) > grad_mm
 
 
 class SeededSource:

@@ -74,11 +74,17 @@ def graft(sim_mm: np.ndarray, pred_mm: np.ndarray, spec: DepthSpec) -> np.ndarra
 def edge_band(frame: np.ndarray) -> np.ndarray:
     """bool [H, W]: the pixels within ``EDGE_BAND_PX`` of a depth edge of the uint16 mm frame's geometry (its
     holes filled first, so a hole's rim is not an edge)."""
-    geo = fill_holes(frame).astype(np.float32)
-    jump = np.zeros(frame.shape, bool)
-    jump[1:] |= np.abs(np.diff(geo, axis=0)) > EDGE_MM_PER_PX
-    jump[:, 1:] |= np.abs(np.diff(geo, axis=1)) > EDGE_MM_PER_PX
-    return ndimage.binary_dilation(jump, iterations=EDGE_BAND_PX)
+    return ndimage.binary_dilation(depth_steps(fill_holes(frame), EDGE_MM_PER_PX), iterations=EDGE_BAND_PX)
+
+
+def depth_steps(depth_mm: np.ndarray, step_mm: float) -> np.ndarray:
+    """bool [H, W]: the pixels whose depth differs by more than ``step_mm`` from the pixel above or to the
+    left of them (holes count as depth 0 here; ``edge_band`` fills them first)."""
+    z = depth_mm.astype(np.float32)
+    steps = np.zeros(z.shape, bool)
+    steps[1:] |= np.abs(np.diff(z, axis=0)) > step_mm
+    steps[:, 1:] |= np.abs(np.diff(z, axis=1)) > step_mm
+    return steps
 
 
 def graft_edges(sim_mm: np.ndarray, made_mm: np.ndarray) -> np.ndarray:
