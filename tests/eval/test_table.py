@@ -28,6 +28,18 @@ def test_cells_land_in_their_row_and_column_with_a_wilson_interval(tmp_path):
     assert "| a + inpaint | 100.0% [72%, 100%] n=10 | - |" in markdown(doc)
 
 
+def test_rows_of_files_with_one_name_keep_as_many_folders_as_tell_them_apart(tmp_path):
+    policies = {"student:$R/row_a/c1/student.onnx": "row_a/c1/student",
+                "student:$R/row_b/c1/student.onnx": "row_b/c1/student",
+                "student:models/student.onnx": "models/student", "student:runs/a.onnx": "a"}
+    paths = []
+    for i, policy in enumerate(policies):
+        path = _result(tmp_path, f"r{i}")
+        path.write_text(json.dumps(dict(json.loads(path.read_text()), policy=policy)))
+        paths.append(path)
+    assert set(build(paths)["rows"]) == set(policies.values())
+
+
 def test_a_cell_carries_the_closing_distance_when_the_result_has_one(tmp_path):
     path = _result(tmp_path, "d", sensor="stereo")
     result = json.loads(path.read_text())

@@ -1,6 +1,7 @@
 """``python -m trainer table RESULT.json ...``: many ``trainer evaluate`` results as one comparison table.
 
-Rows are policies (the policy file's stem, "+ inpaint" when the runtime restored holes), columns are
+Rows are policies (the policy file's stem, with as many of its folders as tell the table's policies apart:
+``row_a/c1/student`` and ``row_b/c1/student``; "+ inpaint" when the runtime restored holes), columns are
 sensor x object group; a cell is the success rate with its 95 % Wilson interval and episode count, and where
 the result has one, the median horizontal hand-object distance at the first gripper close with its interval.
 Prints markdown; ``--out`` also writes the table as JSON with every cell's source file, and ``--base`` builds
@@ -12,7 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 from hil_sim.objects import GROUPS
 from trainer.eval.stats import wilson_interval
@@ -28,7 +29,7 @@ def load(path: Path) -> dict:
     try:
         result = json.loads(path.read_text())
         successes = round(result["success_rate"] * result["episodes"])
-        row = Path(result["policy"].partition(":")[2] or result["policy"]).stem
+        policy = result["policy"].partition(":")[2] or result["policy"]
         restore = result.get("restore", "none")
         closes = result.get("first_close", {})
     except (OSError, ValueError, KeyError, TypeError) as exc:
@@ -36,7 +37,7 @@ def load(path: Path) -> dict:
     objects = next((name for name, kinds in GROUPS.items() if list(kinds) == result["objects"]),
                    ",".join(result["objects"]))
     n = result["episodes"]
-    return {"row": row + ("" if restore == "none" else f" + {restore}"),
+    return {"policy": policy, "restore": "" if restore == "none" else f" + {restore}",
             "column": f"{result['sensor']} {objects}", "success_rate": result["success_rate"],
             "successes": successes, "episodes": n,
             "ci95": [round(b, 4) for b in wilson_interval(successes, n)],
@@ -51,7 +52,10 @@ def build(paths: list[Path], base: dict | None = None) -> dict:
     rows = (base or {}).get("rows", {})
     table: dict[str, dict[str, dict]] = {row: dict(cells) for row, cells in rows.items()}
     measured: set[tuple[str, str]] = set()
-    for c in (load(p) for p in paths):
+    cells = [load(p) for p in paths]
+    names = row_names({c["policy"] for c in cells})
+    for c in cells:
+        c["row"] = names[c["policy"]] + c["restore"]
         if (c["row"], c["column"]) in measured:
             raise TableError(f"two results for {c['row']} / {c['column']}: "
                              f"{table[c['row']][c['column']]['source']} and {c['source']}")
@@ -60,6 +64,20 @@ def build(paths: list[Path], base: dict | None = None) -> dict:
     columns = sorted({column for cells in table.values() for column in cells},
                      key=lambda c: (c.split()[0] != "clean", c))
     return {"columns": columns, "rows": table}
+
+
+def row_names(policies: set[str]) -> dict[str, str]:
+    """Each policy file's name without its suffix, with the fewest of its last folders that tell it apart
+    from every other policy's (the whole path where nothing less does)."""
+    parts = {p: PurePosixPath(p).with_suffix("").parts for p in policies}
+
+    def name(p: str) -> str:
+        for k in range(1, len(parts[p]) + 1):
+            if all(parts[q][-k:] != parts[p][-k:] for q in policies - {p}):
+                return "/".join(parts[p][-k:])
+        return p
+
+    return {p: name(p) for p in policies}
 
 
 def load_base(path: Path) -> dict:
