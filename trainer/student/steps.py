@@ -62,10 +62,9 @@ class LabelledSteps:
             if source not in STORED:
                 raise StepsError(f"unknown depth source {source!r}; choose one of {sorted(STORED)}")
         stores = [DemoStore.open(p) for p in paths]
-        if depth:
-            for store in stores:  # refused when absent, or a generator's unfinished chunks (zeros)
-                for source in sources:
-                    store.check_depth(source, store.n_steps)
+        # each source's array in each store, refused up front when absent or a generator's unfinished chunks
+        arrays = [[store.check_depth(source, store.n_steps) for store in stores]
+                  for source in (sources if depth else [])]
         parts = [self._read(store, p, action_horizon if chunks else 0)
                  for store, p in zip(stores, paths, strict=True)]
         self.spec: DepthSpec = parts[0]["spec"]
@@ -86,8 +85,8 @@ class LabelledSteps:
         if len(scales) > 1:
             raise StepsError(f"{paths} mix depth scales {sorted(scales)}")
         spill = paths[0].parent if self.device.type == "cpu" else None  # a GPU copy frees the host's at once
-        held = [torch.from_numpy(_frames(stores, spill, source).view(np.int16)).to(self.device)
-                for source in (sources if depth else [])]
+        held = [torch.from_numpy(_frames(stores, names, spill).view(np.int16)).to(self.device)
+                for names in arrays]
         self.frames = held[0] if held else None
         self.teacher_frames = held[1] if len(held) > 1 else None
         self.normalised = torch.from_numpy(normalise(np.arange(2 ** 16, dtype=np.uint16), scales.pop(),
@@ -130,13 +129,14 @@ class LabelledSteps:
         return self.normalised[sensor]
 
 
-def _frames(stores: list[DemoStore], folder: Path | None, source: str) -> np.ndarray:
-    """Every store's frames of depth ``source`` (``DemoStore.check_depth``) in one uint16 array [steps, H, W],
-    filled a zarr chunk at a time; with a ``folder``, into a file there that is unlinked at once (the space
-    comes back when the array goes, even if the process is killed), else in memory. Nothing is held twice:
+def _frames(stores: list[DemoStore], names: list[str], folder: Path | None) -> np.ndarray:
+    """Every store's frames of one depth source (``names``: its array in each store, from
+    ``DemoStore.check_depth``) in one uint16 array [steps, H, W], filled a zarr chunk at a time; with a
+    ``folder``, into a file there that is unlinked at once (the space comes back when the array goes, even if
+    the process is killed), else in memory. Nothing is held twice:
     per-store copies joined by ``np.concatenate`` were, and a 192 x 144 recipe's round-5 fit (250k frames, 14
     GB) was killed for it on a 24 GiB machine."""
-    arrays = [store.root[store.check_depth(source, store.n_steps)] for store in stores]
+    arrays = [store.root[name] for store, name in zip(stores, names, strict=True)]
     steps = sum(store.n_steps for store in stores)
     shape = (steps, *arrays[0].shape[1:])
     if folder is None:
