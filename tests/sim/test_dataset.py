@@ -186,9 +186,10 @@ def test_a_store_that_drove_on_a_generated_source_holds_that_sources_frames_as_i
     outs, done = expert.generation_outputs("residual_edges", settings, chunk=8)
     outs["residual_edges"][:] = expert.root["data/depth"][:] + 1
     done[:] = True
-    both = _frames([expert, drove], None, "residual_edges")
+    stores = [expert, drove]
+    both = _frames(stores, [s.check_depth("residual_edges", s.n_steps) for s in stores], None)
     np.testing.assert_array_equal(both, np.concatenate([_episode(5, 1).depth + 1, episode.depth // 3]))
-    np.testing.assert_array_equal(_frames([expert, drove], None, "gt"),
+    np.testing.assert_array_equal(_frames(stores, [s.check_depth("gt", s.n_steps) for s in stores], None),
                                   np.concatenate([_episode(5, 1).depth, episode.depth]))
 
 
