@@ -170,7 +170,7 @@ def test_a_store_that_drove_on_a_generated_source_holds_that_sources_frames_as_i
     """A DAgger round under ``--sensor residual_edges:steps=5`` keeps what the learner saw as
     data/depth_sensor; a fit on ``residual_edges`` frames reads those, as it reads a generator's array in an
     expert's store."""
-    from trainer.student.steps import _frames
+    from trainer.student.steps import _frames, depth_arrays
 
     drove = DemoStore.create(tmp_path / "drove.zarr", spec=DepthSpec(), action_scale=0.05,
                              control_rate_hz=10.0, sensor="residual_edges:steps=5")
@@ -187,9 +187,9 @@ def test_a_store_that_drove_on_a_generated_source_holds_that_sources_frames_as_i
     outs["residual_edges"][:] = expert.root["data/depth"][:] + 1
     done[:] = True
     stores = [expert, drove]
-    both = _frames(stores, [s.check_depth("residual_edges", s.n_steps) for s in stores], None)
+    both = _frames(stores, depth_arrays(stores, "residual_edges"), None)
     np.testing.assert_array_equal(both, np.concatenate([_episode(5, 1).depth + 1, episode.depth // 3]))
-    np.testing.assert_array_equal(_frames(stores, [s.check_depth("gt", s.n_steps) for s in stores], None),
+    np.testing.assert_array_equal(_frames(stores, depth_arrays(stores, "gt"), None),
                                   np.concatenate([_episode(5, 1).depth, episode.depth]))
 
 

@@ -203,7 +203,7 @@ def test_steps_of_several_stores_keep_their_frames_off_the_heap_and_in_order(tmp
     import tracemalloc
 
     import trainer.dataset
-    from trainer.student.steps import LabelledSteps, _frames
+    from trainer.student.steps import LabelledSteps, _frames, depth_arrays
 
     monkeypatch.setattr(trainer.dataset, "_CHUNK_STEPS", 8)
     config = EnvConfig(objects=("cube",), max_steps=20)
@@ -221,8 +221,8 @@ def test_steps_of_several_stores_keep_their_frames_off_the_heap_and_in_order(tmp
     np.testing.assert_array_equal(steps.frames.numpy().view(np.uint16), joined)
     assert peak < 0.5 * joined.nbytes, f"peak {peak} bytes on the heap for {joined.nbytes} bytes of frames"
     assert not list(tmp_path.glob("frames-*")), "the frames' file is left behind"
-    names = [s.check_depth("gt", s.n_steps) for s in stores]
-    np.testing.assert_array_equal(_frames(stores, names, None), joined)  # in memory, as for a GPU fit
+    in_memory = _frames(stores, depth_arrays(stores, "gt"), None)  # as for a GPU fit
+    np.testing.assert_array_equal(in_memory, joined)
 
 
 class _Reader:

@@ -62,9 +62,7 @@ class LabelledSteps:
             if source not in STORED:
                 raise StepsError(f"unknown depth source {source!r}; choose one of {sorted(STORED)}")
         stores = [DemoStore.open(p) for p in paths]
-        # each source's array in each store, refused up front when absent or a generator's unfinished chunks
-        arrays = [[store.check_depth(source, store.n_steps) for store in stores]
-                  for source in (sources if depth else [])]
+        arrays = [depth_arrays(stores, source) for source in (sources if depth else [])]  # refused up front
         parts = [self._read(store, p, action_horizon if chunks else 0)
                  for store, p in zip(stores, paths, strict=True)]
         self.spec: DepthSpec = parts[0]["spec"]
@@ -129,9 +127,15 @@ class LabelledSteps:
         return self.normalised[sensor]
 
 
+def depth_arrays(stores: list[DemoStore], source: str) -> list[str]:
+    """Each store's array of depth ``source`` (``DemoStore.check_depth``: refused when absent, or where a
+    generator's chunks are unfinished, zeros)."""
+    return [store.check_depth(source, store.n_steps) for store in stores]
+
+
 def _frames(stores: list[DemoStore], names: list[str], folder: Path | None) -> np.ndarray:
-    """Every store's frames of one depth source (``names``: its array in each store, from
-    ``DemoStore.check_depth``) in one uint16 array [steps, H, W], filled a zarr chunk at a time; with a
+    """Every store's frames of one depth source (``names``: its array in each store, ``depth_arrays``) in
+    one uint16 array [steps, H, W], filled a zarr chunk at a time; with a
     ``folder``, into a file there that is unlinked at once (the space comes back when the array goes, even if
     the process is killed), else in memory. Nothing is held twice:
     per-store copies joined by ``np.concatenate`` were, and a 192 x 144 recipe's round-5 fit (250k frames, 14
