@@ -79,6 +79,29 @@ def test_a_zero_residual_returns_the_simulated_frame_and_the_hole_channel_its_ho
     np.testing.assert_array_equal(gen(sim, np.arange(2)), out)
 
 
+def test_a_stage_configs_hole_threshold_decides_its_holes_and_names_the_model(model, tmp_path):
+    """A lower threshold turns the hole channel's blurred pixels into holes, and a store can tell the
+    calibrated model from the plain one."""
+    import shutil
+
+    from trainer.ddg.residual import residual_model_id
+
+    calibrated = tmp_path / "calibrated"
+    shutil.copytree(model, calibrated)
+    cfg_file = calibrated / "stage1" / "config.json"
+    cfg_file.write_text(json.dumps({**json.loads(cfg_file.read_text()), "hole_threshold": -0.5}))
+    sim = scene(np.random.default_rng(0))[None]
+    x0 = np.zeros((1, 2, 96, 128), np.float32)
+    x0[:, 1] = -1.0
+    x0[:, 1, 40:50, 60:70] = -0.3  # more "hole" than "valid", not past half way
+    assert (decode(sim, x0, LINEAR) == sim).all()
+    assert (decode(sim, x0, LINEAR, holes=-0.5)[:, 40:50, 60:70] == 0).all()
+    assert ResidualGenerator(calibrated).stages[0].holes == -0.5
+    assert ResidualGenerator(model).stages[0].holes == 0.0
+    assert residual_model_id(calibrated).endswith("~holes-0.5")
+    assert "~holes" not in residual_model_id(model)
+
+
 def test_encode_then_decode_gives_back_the_sensor_frame():
     rng = np.random.default_rng(0)
     sim = scene(rng)[None]

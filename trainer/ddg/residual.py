@@ -44,7 +44,9 @@ from .sample import FrameError, OnnxEps, TorchEps, check_frames, ddim_reverse, f
 TARGET_CHANNELS = 2
 """Residual and holes."""
 HOLE_THRESHOLD = 0.0
-"""A pixel of the hole channel above this is a hole: half way between "valid" (-1) and "hole" (+1)."""
+"""A pixel of the hole channel above this is a hole: half way between "valid" (-1) and "hole" (+1). A stage's
+config may set its own ``hole_threshold``: a few DDIM steps leave the channel blurred, and a lower threshold
+gives back the sensor's hole rate (research/hole_threshold.sh)."""
 STAGES = ("stage1", "stage2")
 STAGE_SEED = 1 << 32
 """Stage k draws its noise under seed + (k - 1) * STAGE_SEED: its own, not stage I's again."""
@@ -86,11 +88,13 @@ def encode(sim_mm: np.ndarray, sensor_mm: np.ndarray, code: ResidualCode) -> np.
     return np.stack([residual, holes], axis=1).astype(np.float32)
 
 
-def decode(sim_mm: np.ndarray, x0: np.ndarray, code: ResidualCode) -> np.ndarray:
-    """uint16 mm [N, H, W] + a sampled x0 [N, 2, H, W] -> the generated uint16 mm depth, 0 = no data."""
+def decode(sim_mm: np.ndarray, x0: np.ndarray, code: ResidualCode, holes: float = HOLE_THRESHOLD
+           ) -> np.ndarray:
+    """uint16 mm [N, H, W] + a sampled x0 [N, 2, H, W] -> the generated uint16 mm depth, 0 = no data (and
+    wherever the hole channel is above ``holes``)."""
     offset = np.rint(code.to_metres(x0[:, 0].astype(np.float64)) * 1000.0).astype(np.int64)
     depth = sim_mm.astype(np.int64) + offset
-    none = (x0[:, 1] > HOLE_THRESHOLD) | (sim_mm == 0) | (depth <= 0)
+    none = (x0[:, 1] > holes) | (sim_mm == 0) | (depth <= 0)
     return np.where(none, 0, np.minimum(depth, 65535)).astype(np.uint16)
 
 
@@ -113,6 +117,7 @@ class Stage:
     def __init__(self, stage_dir: Path, steps: int, threads: int, backend: str, mode: str) -> None:
         cfg = load_config(stage_dir, RESIDUAL_SCALE)
         self.spec, self.code = cfg["depth_spec"], ResidualCode(cfg["residual_m"], cfg.get("residual_mu", 0.0))
+        self.holes = cfg.get("hole_threshold", HOLE_THRESHOLD)
         self.scheduler = ddim_scheduler(cfg["unet"], steps)
         self.eps = (OnnxEps(stage_dir, threads, mode) if backend == "onnx"
                     else TorchEps(stage_dir, RESIDUAL_SCALE))
@@ -131,8 +136,12 @@ def stage_dirs(model_dir: str | Path, stages: int = 0) -> list[Path]:
 
 
 def residual_model_id(model_dir: str | Path) -> str:
-    """Each stage's ``model_id``: a store's record of which residual model made its depth."""
-    return "+".join(model_id(d) for d in stage_dirs(model_dir))
+    """Each stage's ``model_id`` and hole threshold where its config sets one: a store's record of which
+    residual model made its depth."""
+    def stage_id(d: Path) -> str:
+        holes = load_config(d, RESIDUAL_SCALE).get("hole_threshold", HOLE_THRESHOLD)
+        return model_id(d) + (f"~holes{holes:g}" if holes != HOLE_THRESHOLD else "")
+    return "+".join(stage_id(d) for d in stage_dirs(model_dir))
 
 
 class ResidualGenerator:
@@ -171,7 +180,7 @@ class ResidualGenerator:
             cond = stage_condition(sim_mm, self.spec, self.code, out)
             x0 = ddim_reverse(stage.eps, cond, noise, stage.scheduler, self.eta,
                               lambda j, s=seed: frame_noise(s, indices, shape, j, TARGET_CHANNELS))
-            out = decode(sim_mm, x0, self.code)
+            out = decode(sim_mm, x0, self.code, stage.holes)
         return graft_edges(sim_mm, out) if self.edges else out
 
 
