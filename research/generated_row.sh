@@ -13,18 +13,32 @@
 # every round's source frames (c{name}r{r}). Every stage is resumed (research/sensor_stages.sh); the ceiling's
 # round 0 is collected if missing.
 #
-# STEPS (5) is the generator's DDIM steps; another count is another source, kept apart as row_SOURCE_sSTEPS.
+# STEPS (5) is the generator's DDIM steps; another count is another source, kept apart as row_SOURCE_sSTEPS. HOLES
+# (residual sources) is the residual diffusion's hole threshold (research/hole_threshold.sh), another source again,
+# row_SOURCE_sSTEPS_hHOLES.
 #
-#   research/generated_row.sh SOURCE [W [ROUNDS]]   # env: CELL=1, WORKERS (2), EPISODES (40), STEPS (5)
+#   research/generated_row.sh SOURCE [W [ROUNDS]]   # env: CELL=1, WORKERS (2), EPISODES (40), STEPS (5), HOLES
 set -euo pipefail
 SOURCE=${1:?usage: research/generated_row.sh ddg|residual|residual_edges [W [ROUNDS]]}
 W=${2:-0}
 ROUNDS=${3:-0}
 EPISODES=${EPISODES:-40}  # not 150: every frame the learner sees is generated (residual_edges: 1.4 a second)
 STEPS=${STEPS:-5}
+HOLES=${HOLES:-}
 NAME=row_$SOURCE
 [[ $STEPS == 5 ]] || NAME=${NAME}_s$STEPS
+if [[ -n $HOLES ]]; then
+    [[ $SOURCE == residual* ]] || { echo "error: HOLES is the residual diffusion's, not $SOURCE's" >&2; exit 2; }
+    NAME=${NAME}_h$HOLES
+fi
 source "$(dirname "$0")/sensor_stages.sh"
+MODEL=()  # the generator's model directory when it is not the shipped one
+learner_sensor=$SOURCE:steps=$STEPS
+if [[ -n $HOLES ]]; then
+    calibrated_residual "$HOLES" "$R/residual_holes/h$HOLES"
+    MODEL=(--model "$R/residual_holes/h$HOLES")
+    learner_sensor+=,model=$R/residual_holes/h$HOLES
+fi
 C=$R/table2/ceiling
 mkdir -p "$C"
 generator=${SOURCE%_nograft}  # the DDG makes ddg and ddg_nograft together
@@ -37,7 +51,8 @@ if [[ ! -f $D/round0.zarr.done ]]; then
         cp -r "$C/round0.zarr" "$D/round0.part.zarr" && mv "$D/round0.part.zarr" "$D/round0.zarr"
     fi
     log "$SOURCE frames of $D/round0.zarr"
-    python -m trainer ddg generate --generator "$generator" --demos "$D/round0.zarr" --steps "$STEPS" --threads 2
+    python -m trainer ddg generate --generator "$generator" --demos "$D/round0.zarr" --steps "$STEPS" --threads 2 \
+        "${MODEL[@]}"
     touch "$D/round0.zarr.done"
 fi
 name=plain
@@ -51,7 +66,7 @@ base=$name
 for ((r = 1; r <= ROUNDS; r++)); do
     prev=$name
     name=${base}r$r
-    SENSOR=$SOURCE:steps=$STEPS dagger_round "$name" "$prev" $((52000 + 1000 * (r - 1))) "$(python -c "print(0.5 ** $r)")"
+    SENSOR=$learner_sensor dagger_round "$name" "$prev" $((52000 + 1000 * (r - 1))) "$(python -c "print(0.5 ** $r)")"
 done
 out=$R/table2/low_hand/c3_vs_${NAME}_${name}_approach_heldout.json
 if [[ -f $out ]]; then :

@@ -22,6 +22,19 @@ recover_shipped() {
     [[ -f $K/head.pt ]] || python -m export.recover models/student.onnx --out "$K"
 }
 
+# calibrated_residual T DIR: the shipped residual diffusion (models/residual) at DIR, its last stage's hole threshold
+# set to T (trainer/ddg/residual.py: HOLE_THRESHOLD; a lower one makes more holes).
+calibrated_residual() {
+    [[ -f $2/done ]] && return
+    rm -rf "$2" && mkdir -p "$(dirname "$2")" && cp -r models/residual "$2"
+    python - "$1" "$2" <<'EOF'
+import json, pathlib, sys
+cfg = sorted(pathlib.Path(sys.argv[2]).glob("stage*/config.json"))[-1]
+cfg.write_text(json.dumps({**json.loads(cfg.read_text()), "hole_threshold": float(sys.argv[1])}, indent=1) + "\n")
+EOF
+    touch "$2/done"
+}
+
 # need STORE MAKER: STORE appended to the array `stores` if it is complete, else exit 2 naming the command MAKER
 # that makes it.
 need() {

@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# The residual diffusion's hole threshold against the stereo sensor's hole rates (issue 45, docs/table2.md): at a
+# few DDIM steps the hole channel stays blurred and the shipped threshold (0, half way) makes fewer holes than the
+# sensor has. Each threshold T gets a copy of models/residual calibrated so ($R/residual_holes/hT), and `ddg
+# vs-sensor` judges them all on the gate store's 20 held-out expert episodes under stereo (seeds 30000..; collected
+# here if missing): holes at edges / flat, wrong depth, FID. The report: $R/table2/vs_sensor/holes_sSTEPS.json.
+#
+#   research/hole_threshold.sh STEPS T [T ...]    # e.g. research/hole_threshold.sh 2 0 -0.3 -0.6
+set -euo pipefail
+STEPS=${1:?usage: research/hole_threshold.sh STEPS T [T ...]}
+shift
+(($# > 0)) || { echo "error: name at least one threshold T (the hole channel's, in [-1, 1])" >&2; exit 2; }
+NAME=gate
+source "$(dirname "$0")/sensor_stages.sh"
+recover_shipped
+store=$D/stereo_seen20.zarr
+if [[ ! -f $store.done ]]; then
+    log "collect $store"
+    python -m trainer student readout "$K/student.pt" --store "$store" --episodes 20 --no-chunks --sensor stereo \
+        --objects seen --seed 30000 --workers "$WORKERS" --collect-only
+    touch "$store.done"
+fi
+dirs=()
+for t in "$@"; do
+    calibrated_residual "$t" "$R/residual_holes/h$t"
+    dirs+=("$R/residual_holes/h$t")
+done
+python -m trainer ddg vs-sensor --store "$store" --residual "${dirs[@]}" --steps "$STEPS" --every 4 --bootstrap 10 \
+    --json "$R/table2/vs_sensor/holes_s$STEPS.json"
