@@ -35,9 +35,10 @@ source "$(dirname "$0")/sensor_stages.sh"
 MODEL=()  # the generator's model directory when it is not the shipped one
 learner_sensor=$SOURCE:steps=$STEPS
 if [[ -n $HOLES ]]; then
-    calibrated_residual "$HOLES" "$R/residual_holes/h$HOLES"
-    MODEL=(--model "$R/residual_holes/h$HOLES")
-    learner_sensor+=,model=$R/residual_holes/h$HOLES
+    model=$R/residual_holes/h$HOLES
+    calibrated_residual "$HOLES" "$model"
+    MODEL=(--model "$model")
+    learner_sensor+=,model=$model
 fi
 C=$R/table2/ceiling
 mkdir -p "$C"

@@ -14,12 +14,7 @@ NAME=gate
 source "$(dirname "$0")/sensor_stages.sh"
 recover_shipped
 store=$D/stereo_seen20.zarr
-if [[ ! -f $store.done ]]; then
-    log "collect $store"
-    python -m trainer student readout "$K/student.pt" --store "$store" --episodes 20 --no-chunks --sensor stereo \
-        --objects seen --seed 30000 --workers "$WORKERS" --collect-only
-    touch "$store.done"
-fi
+SENSOR=stereo OBJECTS=seen collect "$store" 20 30000
 dirs=()
 for t in "$@"; do
     calibrated_residual "$t" "$R/residual_holes/h$t"

@@ -45,7 +45,8 @@ need() {
     stores+=("$1")
 }
 
-# collect STORE EPISODES SEED [DRIVER BETA [END_CM [GLIMPSE]]]: a labelled store of frames under $SENSOR, marked
+# collect STORE EPISODES SEED [DRIVER BETA [END_CM [GLIMPSE]]]: a labelled store of frames under $SENSOR (of the
+# kinds OBJECTS names, default the training kinds), marked
 # done when complete; DRIVER is a policy spec (student:ONNX, reactive:BIAS_CM), else the expert drives; with END_CM
 # each episode ends once the grasp site is that low over the object (the approach alone); with GLIMPSE frames,
 # at a height drawn between END_CM and 30 cm, keeping only its last GLIMPSE frames.
@@ -54,7 +55,7 @@ collect() {
     [[ -f $store.done ]] && return
     log "collect $store ($episodes episodes${driver:+, $driver driving, beta $beta})"
     python -m trainer student readout "$K/student.pt" --store "$store" --episodes "$episodes" --no-chunks \
-        --sensor "$SENSOR" --objects "$TRAIN_KINDS" --seed "$seed" --workers "$WORKERS" --collect-only \
+        --sensor "$SENSOR" --objects "${OBJECTS:-$TRAIN_KINDS}" --seed "$seed" --workers "$WORKERS" --collect-only \
         --end-height-cm "$end_cm" --glimpse "$glimpse" ${driver:+--learner $driver --beta $beta}
     touch "$store.done"
 }

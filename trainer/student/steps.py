@@ -135,11 +135,10 @@ def depth_arrays(stores: list[DemoStore], source: str) -> list[str]:
 
 def _frames(stores: list[DemoStore], names: list[str], folder: Path | None) -> np.ndarray:
     """Every store's frames of one depth source (``names``: its array in each store, ``depth_arrays``) in
-    one uint16 array [steps, H, W], filled a zarr chunk at a time; with a
-    ``folder``, into a file there that is unlinked at once (the space comes back when the array goes, even if
-    the process is killed), else in memory. Nothing is held twice:
-    per-store copies joined by ``np.concatenate`` were, and a 192 x 144 recipe's round-5 fit (250k frames, 14
-    GB) was killed for it on a 24 GiB machine."""
+    one uint16 array [steps, H, W], filled a zarr chunk at a time; with a ``folder``, into a file there that
+    is unlinked at once (the space comes back when the array goes, even if the process is killed), else in
+    memory. Nothing is held twice: per-store copies joined by ``np.concatenate`` were, and a 192 x 144
+    recipe's round-5 fit (250k frames, 14 GB) was killed for it on a 24 GiB machine."""
     arrays = [store.root[name] for store, name in zip(stores, names, strict=True)]
     steps = sum(store.n_steps for store in stores)
     shape = (steps, *arrays[0].shape[1:])
