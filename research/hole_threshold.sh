@@ -3,9 +3,11 @@
 # few DDIM steps the hole channel stays blurred and the shipped threshold (0, half way) makes fewer holes than the
 # sensor has. Each threshold T gets a copy of models/residual calibrated so ($R/residual_holes/hT), and `ddg
 # vs-sensor` judges them all on the gate store's 20 held-out expert episodes under stereo (seeds 30000..; collected
-# here if missing): holes at edges / flat, wrong depth, FID. The report: $R/table2/vs_sensor/holes_sSTEPS.json.
+# here if missing): holes at edges / flat, wrong depth, FID. The report: $R/table2/vs_sensor/holes_sSTEPS_T1_T2...json.
 #
-#   research/hole_threshold.sh STEPS T [T ...]    # e.g. research/hole_threshold.sh 2 0 -0.3 -0.6
+# T may be FLAT,EDGES: one threshold off the simulated frame's depth edges, one within their band.
+#
+#   research/hole_threshold.sh STEPS T [T ...]    # e.g. research/hole_threshold.sh 2 0 -0.3 -0.6,-0.9
 set -euo pipefail
 STEPS=${1:?usage: research/hole_threshold.sh STEPS T [T ...]}
 shift
@@ -21,4 +23,4 @@ for t in "$@"; do
     dirs+=("$R/residual_holes/h$t")
 done
 python -m trainer ddg vs-sensor --store "$store" --residual "${dirs[@]}" --steps "$STEPS" --every 4 --bootstrap 10 \
-    --json "$R/table2/vs_sensor/holes_s$STEPS.json"
+    --json "$R/table2/vs_sensor/holes_s${STEPS}_$(IFS=_; echo "$*").json"

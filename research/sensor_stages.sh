@@ -23,14 +23,17 @@ recover_shipped() {
 }
 
 # calibrated_residual T DIR: the shipped residual diffusion (models/residual) at DIR, its last stage's hole threshold
-# set to T (trainer/ddg/residual.py: HOLE_THRESHOLD; a lower one makes more holes).
+# set to T (trainer/ddg/residual.py: HOLE_THRESHOLD; a lower one makes more holes). T may be FLAT,EDGES: FLAT off
+# the simulated frame's depth edges, EDGES within their band.
 calibrated_residual() {
     [[ -f $2/done ]] && return
     rm -rf "$2" && mkdir -p "$(dirname "$2")" && cp -r models/residual "$2"
     python - "$1" "$2" <<'EOF'
 import json, pathlib, sys
+flat, *edges = (float(t) for t in sys.argv[1].split(","))
 cfg = sorted(pathlib.Path(sys.argv[2]).glob("stage*/config.json"))[-1]
-cfg.write_text(json.dumps({**json.loads(cfg.read_text()), "hole_threshold": float(sys.argv[1])}, indent=1) + "\n")
+set_ = {"hole_threshold": flat, **({"hole_threshold_edges": edges[0]} if edges else {})}
+cfg.write_text(json.dumps({**json.loads(cfg.read_text()), **set_}, indent=1) + "\n")
 EOF
     touch "$2/done"
 }

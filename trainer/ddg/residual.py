@@ -37,7 +37,7 @@ import numpy as np
 
 from runtime.preprocess import DepthSpec, normalise
 
-from .graft import graft_edges
+from .graft import edge_band, graft_edges
 from .model import RESIDUAL_SCALE, ModelDirError, ddim_scheduler, load_config, model_id
 from .sample import FrameError, OnnxEps, TorchEps, check_frames, ddim_reverse, frame_noise, generate_frames
 
@@ -46,7 +46,9 @@ TARGET_CHANNELS = 2
 HOLE_THRESHOLD = 0.0
 """A pixel of the hole channel above this is a hole: half way between "valid" (-1) and "hole" (+1). A stage's
 config may set its own ``hole_threshold``: a few DDIM steps leave the channel blurred, and a lower threshold
-gives back the sensor's hole rate (research/hole_threshold.sh)."""
+gives back the sensor's hole rate (research/hole_threshold.sh). It may also set ``hole_threshold_edges``, the
+threshold within the simulated frame's edge band (``graft.edge_band``): no single threshold gives both the
+sensor's hole rate at edges and its rate on flat regions."""
 STAGES = ("stage1", "stage2")
 STAGE_SEED = 1 << 32
 """Stage k draws its noise under seed + (k - 1) * STAGE_SEED: its own, not stage I's again."""
@@ -88,10 +90,10 @@ def encode(sim_mm: np.ndarray, sensor_mm: np.ndarray, code: ResidualCode) -> np.
     return np.stack([residual, holes], axis=1).astype(np.float32)
 
 
-def decode(sim_mm: np.ndarray, x0: np.ndarray, code: ResidualCode, holes: float = HOLE_THRESHOLD
-           ) -> np.ndarray:
+def decode(sim_mm: np.ndarray, x0: np.ndarray, code: ResidualCode,
+           holes: float | np.ndarray = HOLE_THRESHOLD) -> np.ndarray:
     """uint16 mm [N, H, W] + a sampled x0 [N, 2, H, W] -> the generated uint16 mm depth, 0 = no data (and
-    wherever the hole channel is above ``holes``)."""
+    wherever the hole channel is above ``holes``: one threshold, or one per pixel [N, H, W])."""
     offset = np.rint(code.to_metres(x0[:, 0].astype(np.float64)) * 1000.0).astype(np.int64)
     depth = sim_mm.astype(np.int64) + offset
     none = (x0[:, 1] > holes) | (sim_mm == 0) | (depth <= 0)
@@ -118,9 +120,17 @@ class Stage:
         cfg = load_config(stage_dir, RESIDUAL_SCALE)
         self.spec, self.code = cfg["depth_spec"], ResidualCode(cfg["residual_m"], cfg.get("residual_mu", 0.0))
         self.holes = cfg.get("hole_threshold", HOLE_THRESHOLD)
+        self.edge_holes = cfg.get("hole_threshold_edges")
         self.scheduler = ddim_scheduler(cfg["unet"], steps)
         self.eps = (OnnxEps(stage_dir, threads, mode) if backend == "onnx"
                     else TorchEps(stage_dir, RESIDUAL_SCALE))
+
+    def thresholds(self, sim_mm: np.ndarray) -> float | np.ndarray:
+        """The hole channel's threshold for frames [N, H, W]: per pixel where the config sets an edge one."""
+        if self.edge_holes is None:
+            return self.holes
+        band = np.stack([edge_band(f) for f in sim_mm])
+        return np.where(band, np.float32(self.edge_holes), np.float32(self.holes))
 
 
 def stage_dirs(model_dir: str | Path, stages: int = 0) -> list[Path]:
@@ -136,11 +146,13 @@ def stage_dirs(model_dir: str | Path, stages: int = 0) -> list[Path]:
 
 
 def residual_model_id(model_dir: str | Path) -> str:
-    """Each stage's ``model_id`` and hole threshold where its config sets one: a store's record of which
+    """Each stage's ``model_id`` and hole thresholds where its config sets them: a store's record of which
     residual model made its depth."""
     def stage_id(d: Path) -> str:
-        holes = load_config(d, RESIDUAL_SCALE).get("hole_threshold", HOLE_THRESHOLD)
-        return model_id(d) + (f"~holes{holes:g}" if holes != HOLE_THRESHOLD else "")
+        cfg = load_config(d, RESIDUAL_SCALE)
+        holes, edges = cfg.get("hole_threshold", HOLE_THRESHOLD), cfg.get("hole_threshold_edges")
+        return (model_id(d) + (f"~holes{holes:g}" if holes != HOLE_THRESHOLD else "")
+                + (f"~edges{edges:g}" if edges is not None else ""))
     return "+".join(stage_id(d) for d in stage_dirs(model_dir))
 
 
@@ -180,7 +192,7 @@ class ResidualGenerator:
             cond = stage_condition(sim_mm, self.spec, self.code, out)
             x0 = ddim_reverse(stage.eps, cond, noise, stage.scheduler, self.eta,
                               lambda j, s=seed: frame_noise(s, indices, shape, j, TARGET_CHANNELS))
-            out = decode(sim_mm, x0, self.code, stage.holes)
+            out = decode(sim_mm, x0, self.code, stage.thresholds(sim_mm))
         return graft_edges(sim_mm, out) if self.edges else out
 
 
