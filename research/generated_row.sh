@@ -15,7 +15,7 @@
 #
 # STEPS (5) is the generator's DDIM steps; another count is another source, kept apart as row_SOURCE_sSTEPS. HOLES
 # (residual sources) is the residual diffusion's hole threshold (research/hole_threshold.sh), another source again,
-# row_SOURCE_sSTEPS_hHOLES.
+# row_SOURCE_sSTEPS_hHOLES (FLAT,EDGES: _hFLAT_eEDGES).
 #
 #   research/generated_row.sh SOURCE [W [ROUNDS]]   # env: CELL=1, WORKERS (2), EPISODES (40), STEPS (5), HOLES
 set -euo pipefail
@@ -29,13 +29,14 @@ NAME=row_$SOURCE
 [[ $STEPS == 5 ]] || NAME=${NAME}_s$STEPS
 if [[ -n $HOLES ]]; then
     [[ $SOURCE == residual* ]] || { echo "error: HOLES is the residual diffusion's, not $SOURCE's" >&2; exit 2; }
-    NAME=${NAME}_h$HOLES
+    TAG=h${HOLES/,/_e}  # FLAT,EDGES -> hFLAT_eEDGES: a comma would split the learner sensor's argument
+    NAME=${NAME}_$TAG
 fi
 source "$(dirname "$0")/sensor_stages.sh"
 MODEL=()  # the generator's model directory when it is not the shipped one
 learner_sensor=$SOURCE:steps=$STEPS
 if [[ -n $HOLES ]]; then
-    model=$R/residual_holes/h$HOLES
+    model=$R/residual_holes/$TAG
     calibrated_residual "$HOLES" "$model"
     MODEL=(--model "$model")
     learner_sensor+=,model=$model

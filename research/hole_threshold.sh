@@ -19,8 +19,8 @@ store=$D/stereo_seen20.zarr
 SENSOR=stereo OBJECTS=seen collect "$store" 20 30000
 dirs=()
 for t in "$@"; do
-    calibrated_residual "$t" "$R/residual_holes/h$t"
-    dirs+=("$R/residual_holes/h$t")
+    dirs+=("$R/residual_holes/h${t/,/_e}")  # as research/generated_row.sh names it
+    calibrated_residual "$t" "${dirs[-1]}"
 done
 python -m trainer ddg vs-sensor --store "$store" --residual "${dirs[@]}" --steps "$STEPS" --every 4 --bootstrap 10 \
     --json "$R/table2/vs_sensor/holes_s${STEPS}_$(IFS=_; echo "$*").json"
