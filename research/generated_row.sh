@@ -5,13 +5,14 @@
 # (`trainer ddg generate --generator G --steps STEPS`; SOURCE ddg: DDG (a) grafted, residual_edges: the residual
 # diffusion kept near the depth edges). The shipped first readout is refitted 400 steps on them, with W > 0 the
 # shipped clean-depth readout as its feature teacher on the clean frames of the same steps (`--teacher-loss W`),
-# composed with M0 and exported as c{teachW|plain}; read against the ceiling's round 3 readout on its held-out
-# learner approaches (the gate, where the ceiling is built), then CELL=1 runs a 180-episode seen-kind cell under
-# stereo. With ROUNDS > 0, DAgger on the source before the gate: round r's learner (the last readout composed
-# with M0) drives EPISODES (40) episodes with the source as its sensor (`--sensor SOURCE:steps=STEPS`, beta 0.5^r,
-# seeds 52000 + 1000 (r - 1)..), whose frames the store keeps, and the last readout is refitted 400 steps more on
-# every round's source frames (c{name}r{r}). Every stage is resumed (research/sensor_stages.sh); the ceiling's
-# round 0 is collected if missing.
+# composed with M0 and exported as c{teachW|plain}. With ROUNDS > 0, DAgger on the source: round r's learner (the
+# last readout composed with M0) drives EPISODES (40) episodes with the source as its sensor (`--sensor
+# SOURCE:steps=STEPS`, beta 0.5^r, seeds 52000 + 1000 (r - 1)..), whose frames the store keeps, and the last readout
+# is refitted 400 steps more on every round's source frames (c{name}r{r}). The gate then reads every readout on 20
+# held-out expert episodes under stereo and on the source's frames of the same views (gate_c{name}.json: the bias
+# near the object and over every frame, docs/table2.md), and CELL=1 runs a 180-episode seen-kind cell of the last
+# one under stereo. Every stage is resumed (research/sensor_stages.sh); the ceiling's round 0 is collected if
+# missing.
 #
 # STEPS (5) is the generator's DDIM steps; another count is another source, kept apart as row_SOURCE_sSTEPS. HOLES
 # (residual sources) is the residual diffusion's hole threshold (research/hole_threshold.sh), another source again,
@@ -45,18 +46,20 @@ C=$R/table2/ceiling
 mkdir -p "$C"
 generator=${SOURCE%_nograft}  # the DDG makes ddg and ddg_nograft together
 
-recover_shipped
-if [[ ! -f $D/round0.zarr.done ]]; then
-    expert_round0 "$C/round0.zarr"  # the ceiling's, shared with research/sensor_dagger.sh
-    if [[ ! -d $D/round0.zarr ]]; then
-        rm -rf "$D/round0.part.zarr"
-        cp -r "$C/round0.zarr" "$D/round0.part.zarr" && mv "$D/round0.part.zarr" "$D/round0.zarr"
+# with_source FROM TO: a copy of the store FROM at TO, given the source's frames of its views.
+with_source() {
+    [[ -f $2.done ]] && return
+    if [[ ! -d $2 ]]; then
+        rm -rf "$2.part" && cp -r "$1" "$2.part" && mv "$2.part" "$2"
     fi
-    log "$SOURCE frames of $D/round0.zarr"
-    python -m trainer ddg generate --generator "$generator" --demos "$D/round0.zarr" --steps "$STEPS" --threads 2 \
-        "${MODEL[@]}"
-    touch "$D/round0.zarr.done"
-fi
+    log "$SOURCE frames of $2"
+    python -m trainer ddg generate --generator "$generator" --demos "$2" --steps "$STEPS" --threads 2 "${MODEL[@]}"
+    touch "$2.done"
+}
+
+recover_shipped
+[[ -f $D/round0.zarr.done ]] || expert_round0 "$C/round0.zarr"  # the ceiling's, shared with sensor_dagger.sh
+with_source "$C/round0.zarr" "$D/round0.zarr"
 name=plain
 if [[ $W != 0 ]]; then
     name=teach$W
@@ -65,18 +68,22 @@ fi
 fit "$name" "$K/student.pt" "$D/round0.zarr"  # fit reads the $SOURCE frames
 stores=("$D/round0.zarr")
 base=$name
+readouts=("$name")
 for ((r = 1; r <= ROUNDS; r++)); do
     prev=$name
     name=${base}r$r
     SENSOR=$learner_sensor dagger_round "$name" "$prev" $((52000 + 1000 * (r - 1))) "$(python -c "print(0.5 ** $r)")"
+    readouts+=("$name")
 done
-out=$R/table2/low_hand/c3_vs_${NAME}_${name}_approach_heldout.json
-if [[ -f $out ]]; then :
-elif [[ -f $C/c3/student.pt && -f $C/approach_heldout.zarr.done ]]; then
-    PYTHONPATH=. python research/low_hand_readout.py "$C/c3/student.pt" "$C/approach_heldout.zarr" \
-        --versus "$D/c$name/student.pt" --out "$out" > /dev/null
-else
-    out="skipped: the ceiling's round 3 or held-out approaches are not built (research/sensor_dagger.sh 3)"
-fi
+# the gate: each readout on the 20 held-out gate episodes (research/hole_threshold.sh's), on their stereo frames and
+# on this source's frames of the same views (research/stereo_errors.py)
+gate=$R/table2/gate/stereo_seen20.zarr
+SENSOR=stereo OBJECTS=seen collect "$gate" 20 30000
+with_source "$gate" "$D/gate20.zarr"
+for readout in "${readouts[@]}"; do
+    out=$D/gate_c$readout.json
+    [[ -f $out ]] || PYTHONPATH=. python research/stereo_errors.py "$D/c$readout/student.pt" "$D/gate20.zarr" \
+        --generated --json "$out"
+done
 [[ ${CELL:-0} == 1 ]] && cell "$name"
-log "done: $D/c$name (gate: $out)"
+log "done: $D/c$name (gate: $D/gate_c*.json)"
