@@ -107,7 +107,7 @@ def test_an_edge_threshold_makes_holes_in_the_edge_band_only(model, tmp_path):
     band and stays depth on flat regions, and the model's id names both thresholds."""
     import shutil
 
-    from trainer.ddg.graft import edge_band
+    from trainer.ddg.graft import edge_bands
     from trainer.ddg.residual import residual_model_id
 
     calibrated = tmp_path / "edges"
@@ -116,17 +116,18 @@ def test_an_edge_threshold_makes_holes_in_the_edge_band_only(model, tmp_path):
     cfg_file.write_text(json.dumps({**json.loads(cfg_file.read_text()), "hole_threshold_edges": -0.5}))
     stage = ResidualGenerator(calibrated).stages[0]
     sim = scene(np.random.default_rng(0))[None]
-    band = edge_band(sim[0])
+    band = edge_bands(sim)[0]
     assert band.any() and (~band).any()
     x0 = np.zeros((1, 2, 96, 128), np.float32)
     x0[:, 1] = -0.3  # blurred everywhere: a hole under -0.5, depth under 0
-    out = decode(sim, x0, LINEAR, stage.thresholds(sim))[0]
+    out = decode(sim, x0, LINEAR, stage.thresholds(band[None]))[0]
     assert (out[band] == 0).all() and (out[~band] == sim[0][~band]).all()
     assert residual_model_id(calibrated).endswith("~edges-0.5")
     # through the sampler, same noise: off the band the same frame, in it the plain model's holes and more
     plain, edged = (ResidualGenerator(m, steps=2)(sim, np.array([0]))[0] for m in (model, calibrated))
     assert (edged[~band] == plain[~band]).all()
     assert (edged[band][plain[band] == 0] == 0).all()
+
 
 def test_encode_then_decode_gives_back_the_sensor_frame():
     rng = np.random.default_rng(0)

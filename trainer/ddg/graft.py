@@ -77,6 +77,11 @@ def edge_band(frame: np.ndarray) -> np.ndarray:
     return ndimage.binary_dilation(depth_steps(fill_holes(frame), EDGE_MM_PER_PX), iterations=EDGE_BAND_PX)
 
 
+def edge_bands(frames_mm: np.ndarray) -> np.ndarray:
+    """bool [N, H, W]: each uint16 mm frame's ``edge_band``."""
+    return np.stack([edge_band(f) for f in frames_mm])
+
+
 def depth_steps(depth_mm: np.ndarray, step_mm: float) -> np.ndarray:
     """bool [H, W]: the pixels whose depth differs by more than ``step_mm`` from the pixel above or to the
     left of them (holes count as depth 0 here; ``edge_band`` fills them first)."""
@@ -87,14 +92,15 @@ def depth_steps(depth_mm: np.ndarray, step_mm: float) -> np.ndarray:
     return steps
 
 
-def graft_edges(sim_mm: np.ndarray, made_mm: np.ndarray) -> np.ndarray:
+def graft_edges(sim_mm: np.ndarray, made_mm: np.ndarray, near: np.ndarray | None = None) -> np.ndarray:
     """uint16 mm frames [N, H, W] of equal shape: a generated sensor frame's depth within the simulated
     frame's ``edge_band`` (where stereo matching fattens and smears edges), the simulator's depth elsewhere
     (where the residual diffusion's noise is its own: 47 % of flat pixels more than 2 cm off against the
-    sensor's 7 %, docs/residual.md), and the generated frame's holes everywhere."""
+    sensor's 7 %, docs/residual.md), and the generated frame's holes everywhere. ``near``: the simulated
+    frames' ``edge_bands`` where the caller has them already."""
     if sim_mm.dtype != np.uint16 or made_mm.dtype != np.uint16:
         raise GraftError(f"edge grafting needs uint16 mm maps, got {sim_mm.dtype} and {made_mm.dtype}")
     if sim_mm.shape != made_mm.shape or sim_mm.ndim != 3:
         raise GraftError(f"sim {sim_mm.shape} and generated {made_mm.shape} must be equal [N, H, W] stacks")
-    near = np.stack([edge_band(f) for f in sim_mm])
+    near = edge_bands(sim_mm) if near is None else near
     return np.where(made_mm == 0, np.uint16(0), np.where(near, made_mm, sim_mm))

@@ -37,7 +37,7 @@ import numpy as np
 
 from runtime.preprocess import DepthSpec, normalise
 
-from .graft import edge_band, graft_edges
+from .graft import edge_bands, graft_edges
 from .model import RESIDUAL_SCALE, ModelDirError, ddim_scheduler, load_config, model_id
 from .sample import FrameError, OnnxEps, TorchEps, check_frames, ddim_reverse, frame_noise, generate_frames
 
@@ -125,11 +125,11 @@ class Stage:
         self.eps = (OnnxEps(stage_dir, threads, mode) if backend == "onnx"
                     else TorchEps(stage_dir, RESIDUAL_SCALE))
 
-    def thresholds(self, sim_mm: np.ndarray) -> float | np.ndarray:
-        """The hole channel's threshold for frames [N, H, W]: per pixel where the config sets an edge one."""
+    def thresholds(self, band: np.ndarray | None) -> float | np.ndarray:
+        """The hole channel's threshold: one, or per pixel [N, H, W] where the config sets one for the edge
+        ``band`` (the simulated frames' ``graft.edge_bands``; needed then)."""
         if self.edge_holes is None:
             return self.holes
-        band = np.stack([edge_band(f) for f in sim_mm])
         return np.where(band, np.float32(self.edge_holes), np.float32(self.holes))
 
 
@@ -186,14 +186,17 @@ class ResidualGenerator:
     def __call__(self, sim_mm: np.ndarray, indices: np.ndarray) -> np.ndarray:
         self.check_frames(sim_mm)
         shape, out = (self.spec.out_height, self.spec.out_width), None
+        # the edge band, made once for the stages' edge thresholds and the edge graft alike
+        needs_band = self.edges or any(s.edge_holes is not None for s in self.stages)
+        band = edge_bands(sim_mm) if needs_band else None
         for k, stage in enumerate(self.stages):
             seed = self.seed + k * STAGE_SEED
             noise = frame_noise(seed, indices, shape, channels=TARGET_CHANNELS)
             cond = stage_condition(sim_mm, self.spec, self.code, out)
             x0 = ddim_reverse(stage.eps, cond, noise, stage.scheduler, self.eta,
                               lambda j, s=seed: frame_noise(s, indices, shape, j, TARGET_CHANNELS))
-            out = decode(sim_mm, x0, self.code, stage.thresholds(sim_mm))
-        return graft_edges(sim_mm, out) if self.edges else out
+            out = decode(sim_mm, x0, self.code, stage.thresholds(band))
+        return graft_edges(sim_mm, out, band) if self.edges else out
 
 
 def stage1_outputs(model_dir: str | Path, sim_mm: np.ndarray, steps: int, seed: int = 0, threads: int = 2,

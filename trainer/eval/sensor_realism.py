@@ -31,7 +31,7 @@ import torch
 from runtime.preprocess import DepthSpec
 from trainer.dataset import DatasetError, DemoStore
 from trainer.ddg.baselines import DEFAULT_MODEL, randnoise
-from trainer.ddg.graft import edge_band, graft_edges
+from trainer.ddg.graft import edge_bands, graft_edges
 from trainer.ddg.model import load_config
 from trainer.ddg.residual import ResidualGenerator, stage_dirs
 from trainer.ddg.sample import Generator, generate_frames
@@ -71,7 +71,7 @@ def edge_regions(clean_mm: np.ndarray, spec: DepthSpec) -> dict[str, np.ndarray]
     """The judged pixels of clean frames [N, H, W], those whose clean depth lies in the policy's range, split
     into ``edge`` (near a clean depth edge) and ``flat`` (the rest): made once for every source."""
     in_range = policy_range(clean_mm, spec) & (clean_mm > 0)
-    near = np.stack([edge_band(c) for c in clean_mm])
+    near = edge_bands(clean_mm)
     return {"edge": in_range & near, "flat": in_range & ~near}
 
 
