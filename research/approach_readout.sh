@@ -29,8 +29,7 @@ collect "$D/approach_heldout.zarr" 40 59000 "student:$D/c$FROM/student.onnx" "$b
 fit aim "$D/fit$FROM/ckpt.pt" "${stores[@]}" "$D/approach.zarr"
 for c in "c$FROM" "c$((FROM + 1))" caim; do
     out=$R/table2/low_hand/${c}_approach_heldout.json
-    [[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$D/$c/student.pt" \
-        "$D/approach_heldout.zarr" --out "$out" > /dev/null
+    low_hand "$out" "$D/$c/student.pt" "$D/approach_heldout.zarr"
 done
 [[ ${CELL:-0} == 1 ]] && cell aim
 log "done: $D/caim (gate: $R/table2/low_hand/*_approach_heldout.json)"

@@ -99,8 +99,7 @@ SENSOR=stereo OBJECTS=seen collect "$gate" 20 30000
 with_source "$gate" "$D/gate20.zarr"
 for readout in "${readouts[@]}"; do
     out=$D/gate_c$readout.json
-    [[ -f $out ]] || PYTHONPATH=. python research/stereo_errors.py "$D/c$readout/student.pt" "$D/gate20.zarr" \
-        --generated --json "$out"
+    gate_read "$out" "$D/c$readout/student.pt" "$D/gate20.zarr" --generated
 done
 [[ ${CELL:-0} == 1 ]] && cell "$name"
 log "done: $D/c$name (gate: $D/gate_c*.json)"

@@ -33,7 +33,6 @@ for bias in 0.0 1.0 2.0; do
 done
 fit glimpse "$D/fit2/ckpt.pt" "${stores[@]}"
 out=$R/table2/low_hand/cglimpse_approach_heldout.json
-[[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$D/cglimpse/student.pt" \
-    "$D/approach_heldout.zarr" --out "$out" > /dev/null
+low_hand "$out" "$D/cglimpse/student.pt" "$D/approach_heldout.zarr"
 [[ ${CELL:-0} == 1 ]] && cell glimpse
 log "done: $D/cglimpse (gate: $out)"

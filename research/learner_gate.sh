@@ -22,11 +22,7 @@ SENSOR=stereo OBJECTS=seen collect "$store" 40 33000 "student:$DRIVER" 0
 first=$1
 for ckpt in "$@"; do
     name=$(basename "$(dirname "$(dirname "$ckpt")")")_$(basename "$(dirname "$ckpt")")  # row folder _ readout
-    out=$store.gate_$name.json
-    [[ -f $out ]] || PYTHONPATH=. python research/stereo_errors.py "$ckpt" "$store" --json "$out" > /dev/null
-    [[ $ckpt == "$first" ]] && continue
-    out=$store.versus_$name.json
-    [[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$first" "$store" --versus "$ckpt" \
-        --out "$out" > /dev/null
+    gate_read "$store.gate_$name.json" "$ckpt" "$store"
+    [[ $ckpt == "$first" ]] || low_hand "$store.versus_$name.json" "$first" "$store" "$ckpt"
 done
 log "done: $store.gate_*.json, $store.versus_*.json"

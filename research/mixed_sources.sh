@@ -34,10 +34,8 @@ for ((r = 1; r <= ${ROUND:-0}; r++)); do
 done
 SOURCE=residual_edges TEACHER=$K/student.pt TEACHER_LOSS=$W fit "$name" "$init" "${stores[@]}"
 gate=$D/gate_c$name.json
-[[ -f $gate ]] || PYTHONPATH=. python research/stereo_errors.py "$D/c$name/student.pt" "$first/gate20.zarr" \
-    --generated --json "$gate"
+gate_read "$gate" "$D/c$name/student.pt" "$first/gate20.zarr" --generated
 out=$D/versus_$1_c$name.json
-[[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$first/c$name/student.pt" "$first/gate20.zarr" \
-    --versus "$D/c$name/student.pt" --out "$out" > /dev/null
+low_hand "$out" "$first/c$name/student.pt" "$first/gate20.zarr" "$D/c$name/student.pt"
 [[ ${CELL:-0} == 1 ]] && cell "$name"
 log "done: $D/c$name (gate: $gate, paired: $out)"

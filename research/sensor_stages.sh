@@ -94,6 +94,21 @@ dagger_round() {
     fit "$round" "$D/fit$prev/ckpt.pt" "${stores[@]}"
 }
 
+# gate_read OUT CKPT STORE [--generated]: research/stereo_errors.py's readout of CKPT on STORE's frames (the gate's
+# figures), kept at OUT.
+gate_read() {
+    local out=$1; shift
+    [[ -f $out ]] || PYTHONPATH=. python research/stereo_errors.py "$@" --json "$out"
+}
+
+# low_hand OUT CKPT STORE [OTHER]: research/low_hand_readout.py's reading of CKPT on STORE's frames by the hand's
+# height, with OTHER paired against it episode by episode, kept at OUT.
+low_hand() {
+    local out=$1 ckpt=$2 store=$3 other=${4:-}
+    [[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$ckpt" "$store" ${other:+--versus "$other"} \
+        --out "$out" > /dev/null
+}
+
 # cell ROUND: 180 seen-kind episodes under stereo, seeds 10000.., the table's cell.
 cell() {
     local json=$R/table2/cells/${NAME}_r$1_stereo_seen.json

@@ -32,7 +32,6 @@ for ((k = 1; k <= ${REPEAT:-1}; k++)); do
     init=$D/fit$name/ckpt.pt
 done
 out=$R/table2/low_hand/c3_vs_c${name}_approach_heldout.json
-[[ -f $out ]] || PYTHONPATH=. python research/low_hand_readout.py "$D/c3/student.pt" "$D/approach_heldout.zarr" \
-    --versus "$D/c$name/student.pt" --out "$out" > /dev/null
+low_hand "$out" "$D/c3/student.pt" "$D/approach_heldout.zarr" "$D/c$name/student.pt"
 [[ ${CELL:-0} == 1 ]] && cell "$name"
 log "done: $D/c$name (gate: $out)"
