@@ -11,10 +11,11 @@
 # is refitted 400 steps more on every round's source frames (c{name}r{r}). The gate then reads every readout on 20
 # held-out expert episodes under stereo and on the source's frames of the same views (gate_c{name}.json: the bias
 # near the object and over every frame, docs/table2.md), and CELL=1 runs a 180-episode seen-kind cell of the last
-# one under stereo. With OFFCENTRE=1, off-centre descents follow the rounds: the expert aiming 1.0 and 2.0 cm off
-# (`reactive:B`, beta 0.25, 40 episodes each, seeds 60000..) on clean depth, given the source's frames offline, and
-# the last readout refitted 400 steps more on every store and those (c{name}oc): a row's readout reads its learner's
-# hand beside the object as on target under stereo (docs/table2.md). Every stage is resumed
+# one under stereo. With OFFCENTRE=N, N levels of off-centre descents follow the rounds: the expert aiming B cm off
+# (`reactive:B`, beta 0.25, 40 episodes each; level 1: 1.0 and 2.0 cm, level 2: 1.5 and 3.0, OFFCENTRE_CM in
+# research/sensor_stages.sh) on clean depth, given the source's frames offline, and the last readout refitted 400
+# steps more on every store and those (c{name}oc, then c{name}oc2): a row's readout reads its learner's hand beside
+# the object as on target under stereo (docs/table2.md). Every stage is resumed
 # (research/sensor_stages.sh); the ceiling's round 0 is collected if missing.
 #
 # STEPS (5) is the generator's DDIM steps; another count is another source, kept apart as row_SOURCE_sSTEPS. HOLES
@@ -22,7 +23,7 @@
 # row_SOURCE_sSTEPS_hHOLES (FLAT,EDGES: _hFLAT_eEDGES).
 #
 #   research/generated_row.sh SOURCE [W [ROUNDS]]   # env: CELL=1, WORKERS (2), EPISODES (40), STEPS (5), HOLES,
-#                                                   #      OFFCENTRE=1
+#                                                   #      OFFCENTRE (0, 1, 2)
 set -euo pipefail
 SOURCE=${1:?usage: research/generated_row.sh ddg|residual|residual_edges [W [ROUNDS]]}
 W=${2:-0}
@@ -79,19 +80,20 @@ for ((r = 1; r <= ROUNDS; r++)); do
     SENSOR=$learner_sensor dagger_round "$name" "$prev" $((52000 + 1000 * (r - 1))) "$(python -c "print(0.5 ** $r)")"
     readouts+=("$name")
 done
-if [[ ${OFFCENTRE:-0} == 1 ]]; then  # a hand beside the object, which the row's own learner seldom shows it
-    seed=60000
-    for b in 1.0 2.0; do
+last=$name seed=60000
+for ((o = 1; o <= ${OFFCENTRE:-0}; o++)); do  # a hand beside the object, which the row's own learner seldom shows it
+    for b in ${OFFCENTRE_CM[o - 1]}; do
         SENSOR=clean collect "$D/offcentre$b.clean.zarr" 40 $seed "reactive:$b" 0.25  # the expert reads no depth
         with_source "$D/offcentre$b.clean.zarr" "$D/offcentre$b.zarr"
         stores+=("$D/offcentre$b.zarr")
         seed=$((seed + 1000))
     done
     prev=$name
-    name=${name}oc
+    name=${last}oc
+    ((o == 1)) || name+=$o
     fit "$name" "$D/fit$prev/ckpt.pt" "${stores[@]}"
     readouts+=("$name")
-fi
+done
 # the gate: each readout on the 20 held-out gate episodes (research/hole_threshold.sh's), on their stereo frames and
 # on this source's frames of the same views (research/stereo_errors.py)
 gate=$R/table2/gate/stereo_seen20.zarr

@@ -4,9 +4,9 @@
 # readout fitted on one source reads that source better than the stereo sensor it stands in for. Refitted on every
 # named row's round 0 at once (the same 400 steps, the shipped readout as feature teacher at W), it sees each state
 # under every source: what the sources share is what it can rely on. With ROUND=N, it starts from the first row's
-# round-N readout instead (c{teachW}rN) and adds that row's DAgger rounds 1..N to the stores. With OFFCENTRE=1,
-# that readout is refitted 400 steps more with the first row's off-centre descents added (its offcentre*.zarr from
-# research/generated_row.sh OFFCENTRE=1: the expert aiming 1-2 cm off, in that row's source only), as c{name}oc.
+# round-N readout instead (c{teachW}rN) and adds that row's DAgger rounds 1..N to the stores. With OFFCENTRE=L,
+# that readout is refitted 400 steps more per level with the first row's off-centre descents of levels 1..L added
+# (its offcentre*.zarr from research/generated_row.sh OFFCENTRE=L, in that row's source only): c{name}oc, c{name}oc2.
 # The gate (research/stereo_errors.py on the first row's gate20.zarr: its stereo frames and that row's source) is
 # written to gate_cNAME.json, and research/low_hand_readout.py pairs it with the first row's readout of the same
 # round, episode by episode, on the stereo frames (versus_FIRST_NAME.json); CELL=1 then runs a 180-episode
@@ -14,7 +14,7 @@
 #
 #   research/mixed_sources.sh W ROW [ROW ...]   # ROW: a residual_edges row's folder under $R/table2, e.g.
 #                                               # row_residual_edges_s2_h-0.7; env: ROUND (0), CELL=1,
-#                                               # OFFCENTRE=1
+#                                               # OFFCENTRE (0, 1, 2)
 set -euo pipefail
 W=${1:?usage: research/mixed_sources.sh W ROW [ROW ...]}
 shift
@@ -37,13 +37,16 @@ for ((r = 1; r <= ${ROUND:-0}; r++)); do
 done
 export SOURCE=residual_edges TEACHER=$K/student.pt TEACHER_LOSS=$W
 fit "$name" "$init" "${stores[@]}"
-if [[ ${OFFCENTRE:-0} == 1 ]]; then
-    for b in 1.0 2.0; do
-        need "$first/offcentre$b.zarr" "OFFCENTRE=1 research/generated_row.sh ... (the row $1)"
+last=$name
+for ((o = 1; o <= ${OFFCENTRE:-0}; o++)); do
+    for b in ${OFFCENTRE_CM[o - 1]}; do
+        need "$first/offcentre$b.zarr" "OFFCENTRE=$o research/generated_row.sh ... (the row $1)"
     done
-    fit "${name}oc" "$D/fit$name/ckpt.pt" "${stores[@]}"
-    name=${name}oc
-fi
+    prev=$name
+    name=${last}oc
+    ((o == 1)) || name+=$o
+    fit "$name" "$D/fit$prev/ckpt.pt" "${stores[@]}"
+done
 gate=$D/gate_c$name.json
 gate_read "$gate" "$D/c$name/student.pt" "$first/gate20.zarr" --generated
 out=$D/versus_$1_c$name.json
