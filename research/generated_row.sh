@@ -12,7 +12,7 @@
 # held-out expert episodes under stereo and on the source's frames of the same views (gate_c{name}.json: the bias
 # near the object and over every frame, docs/table2.md), and CELL=1 runs a 180-episode seen-kind cell of the last
 # one under stereo. With OFFCENTRE=N, N levels of off-centre descents follow the rounds: the expert aiming B cm off
-# (`reactive:B`, beta 0.25, 40 episodes each; level 1: 1.0 and 2.0 cm, level 2: 1.5 and 3.0, OFFCENTRE_CM in
+# (`reactive:B`, beta 0.25, 40 episodes each; level 1: 1.0 and 2.0 cm, level 2: 1.5 and 3.0, OFFCENTRE_LEVELS in
 # research/sensor_stages.sh) on clean depth, given the source's frames offline, and the last readout refitted 400
 # steps more on every store and those (c{name}oc, then c{name}oc2): a row's readout reads its learner's hand beside
 # the object as on target under stereo (docs/table2.md). Every stage is resumed
@@ -82,7 +82,7 @@ for ((r = 1; r <= ROUNDS; r++)); do
 done
 last=$name seed=60000
 for ((o = 1; o <= ${OFFCENTRE:-0}; o++)); do  # a hand beside the object, which the row's own learner seldom shows it
-    for b in ${OFFCENTRE_CM[o - 1]}; do
+    for b in ${OFFCENTRE_LEVELS[o - 1]}; do
         SENSOR=clean collect "$D/offcentre$b.clean.zarr" 40 $seed "reactive:$b" 0.25  # the expert reads no depth
         with_source "$D/offcentre$b.clean.zarr" "$D/offcentre$b.zarr"
         stores+=("$D/offcentre$b.zarr")

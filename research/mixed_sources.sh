@@ -39,7 +39,7 @@ export SOURCE=residual_edges TEACHER=$K/student.pt TEACHER_LOSS=$W
 fit "$name" "$init" "${stores[@]}"
 last=$name
 for ((o = 1; o <= ${OFFCENTRE:-0}; o++)); do
-    for b in ${OFFCENTRE_CM[o - 1]}; do
+    for b in ${OFFCENTRE_LEVELS[o - 1]}; do
         need "$first/offcentre$b.zarr" "OFFCENTRE=$o research/generated_row.sh ... (the row $1)"
     done
     prev=$name

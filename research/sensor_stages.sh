@@ -12,8 +12,12 @@ R=${DIFFUDEPGRASP_HOME:-$HOME/.cache/diffudepgrasp}
 K=$R/recovered/shipped
 D=$R/table2/$NAME
 TRAIN_KINDS=seen,squares,shapes
-# OFFCENTRE_CM[L - 1]: the aim biases (cm) of level L of off-centre descents (generated_row.sh, mixed_sources.sh)
-OFFCENTRE_CM=("1.0 2.0" "1.5 3.0")
+# OFFCENTRE_LEVELS[L - 1]: the aim biases (cm) of level L of off-centre descents (generated_row.sh, mixed_sources.sh)
+OFFCENTRE_LEVELS=("1.0 2.0" "1.5 3.0")
+if ! [[ ${OFFCENTRE:-0} =~ ^[0-9]+$ ]] || ((${OFFCENTRE:-0} > ${#OFFCENTRE_LEVELS[@]})); then
+    echo "error: OFFCENTRE=$OFFCENTRE: a level 0..${#OFFCENTRE_LEVELS[@]} (OFFCENTRE_LEVELS, research/sensor_stages.sh)" >&2
+    exit 2
+fi
 # bf16 fits run ~2x faster where the CPU has bf16 arithmetic and ~13x slower where it has none
 PRECISION=$(grep -q -w -e avx512_bf16 -e amx_bf16 /proc/cpuinfo && echo bf16 || echo fp32)
 mkdir -p "$D" "$R/table2/cells"
