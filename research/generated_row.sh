@@ -16,14 +16,16 @@
 # research/sensor_stages.sh) on clean depth, given the source's frames offline, and the last readout refitted 400
 # steps more on every store and those (c{name}oc, then c{name}oc2): a row's readout reads its learner's hand beside
 # the object as on target under stereo (docs/table2.md). Every stage is resumed
-# (research/sensor_stages.sh); the ceiling's round 0 is collected if missing.
+# (research/sensor_stages.sh); the ceiling's round 0 is collected if missing. With AIM=N the last learner then drives
+# N approaches under the source (each ends once the grasp site is 12 cm over the object; beta 0.5^(ROUNDS+1), seeds
+# 58000..), the ceiling's AIM=1 for the row, and the last readout is refitted 400 steps more with them (c{name}aim).
 #
 # STEPS (5) is the generator's DDIM steps; another count is another source, kept apart as row_SOURCE_sSTEPS. HOLES
 # (residual sources) is the residual diffusion's hole threshold (research/hole_threshold.sh), another source again,
 # row_SOURCE_sSTEPS_hHOLES (FLAT,EDGES: _hFLAT_eEDGES).
 #
 #   research/generated_row.sh SOURCE [W [ROUNDS]]   # env: CELL=1, WORKERS (2), EPISODES (40), STEPS (5), HOLES,
-#                                                   #      OFFCENTRE (0, 1, 2)
+#                                                   #      OFFCENTRE (0, 1, 2), AIM (0: approaches)
 set -euo pipefail
 SOURCE=${1:?usage: research/generated_row.sh ddg|residual|residual_edges [W [ROUNDS]]}
 W=${2:-0}
@@ -31,6 +33,7 @@ ROUNDS=${3:-0}
 EPISODES=${EPISODES:-40}  # not 150: every frame the learner sees is generated (residual_edges: 1.4 a second)
 STEPS=${STEPS:-5}
 HOLES=${HOLES:-}
+[[ ${AIM:-0} =~ ^[0-9]+$ ]] || { echo "error: AIM=$AIM: a number of approaches (0: none)" >&2; exit 2; }
 NAME=row_$SOURCE
 [[ $STEPS == 5 ]] || NAME=${NAME}_s$STEPS
 if [[ -n $HOLES ]]; then
@@ -94,6 +97,15 @@ for ((o = 1; o <= ${OFFCENTRE:-0}; o++)); do  # a hand beside the object, which 
     fit "$name" "$D/fit$prev/ckpt.pt" "${stores[@]}"
     readouts+=("$name")
 done
+if ((${AIM:-0} > 0)); then  # more scenes where the aim is set, as the ceiling's AIM=1 (research/approach_readout.sh)
+    SENSOR=$learner_sensor collect "$D/approach_$name.zarr" "$AIM" 58000 "student:$D/c$name/student.onnx" \
+        "$(python -c "print(0.5 ** ($ROUNDS + 1))")" 12
+    stores+=("$D/approach_$name.zarr")
+    prev=$name
+    name=${name}aim
+    fit "$name" "$D/fit$prev/ckpt.pt" "${stores[@]}"
+    readouts+=("$name")
+fi
 # the gate: each readout on the 20 held-out gate episodes (research/hole_threshold.sh's), on their stereo frames and
 # on this source's frames of the same views (research/stereo_errors.py)
 gate=$R/table2/gate/stereo_seen20.zarr
