@@ -83,20 +83,14 @@ for ((r = 1; r <= ROUNDS; r++)); do
     SENSOR=$learner_sensor dagger_round "$name" "$prev" $((52000 + 1000 * (r - 1))) "$(python -c "print(0.5 ** $r)")"
     readouts+=("$name")
 done
-last=$name seed=60000
-for ((o = 1; o <= ${OFFCENTRE:-0}; o++)); do  # a hand beside the object, which the row's own learner seldom shows it
-    for b in ${OFFCENTRE_LEVELS[o - 1]}; do
-        SENSOR=clean collect "$D/offcentre$b.clean.zarr" 40 $seed "reactive:$b" 0.25  # the expert reads no depth
-        with_source "$D/offcentre$b.clean.zarr" "$D/offcentre$b.zarr"
-        stores+=("$D/offcentre$b.zarr")
-        seed=$((seed + 1000))
-    done
-    prev=$name
-    name=${last}oc
-    ((o == 1)) || name+=$o
-    fit "$name" "$D/fit$prev/ckpt.pt" "${stores[@]}"
-    readouts+=("$name")
-done
+# offcentre_store B SEED: the expert aiming B cm off, a hand beside the object, which the row's own learner seldom
+# shows it; collected on clean depth (the expert reads none) and given the source's frames
+offcentre_store() {
+    SENSOR=clean collect "$D/offcentre$1.clean.zarr" 40 "$2" "reactive:$1" 0.25
+    with_source "$D/offcentre$1.clean.zarr" "$D/offcentre$1.zarr"
+    stores+=("$D/offcentre$1.zarr")
+}
+offcentre_levels "$name" offcentre_store
 if ((${AIM:-0} > 0)); then  # more scenes where the aim is set, as the ceiling's AIM=1 (research/approach_readout.sh)
     SENSOR=$learner_sensor collect "$D/approach_$name.zarr" "$AIM" 58000 "student:$D/c$name/student.onnx" \
         "$(python -c "print(0.5 ** ($ROUNDS + 1))")" 12

@@ -37,16 +37,10 @@ for ((r = 1; r <= ${ROUND:-0}; r++)); do
 done
 export SOURCE=residual_edges TEACHER=$K/student.pt TEACHER_LOSS=$W
 fit "$name" "$init" "${stores[@]}"
-last=$name
-for ((o = 1; o <= ${OFFCENTRE:-0}; o++)); do
-    for b in ${OFFCENTRE_LEVELS[o - 1]}; do
-        need "$first/offcentre$b.zarr" "OFFCENTRE=$o research/generated_row.sh ... (the row $1)"
-    done
-    prev=$name
-    name=${last}oc
-    ((o == 1)) || name+=$o
-    fit "$name" "$D/fit$prev/ckpt.pt" "${stores[@]}"
-done
+first_offcentre() {  # first_offcentre B SEED: the first row's descents aiming B cm off (their seeds are its own)
+    need "$first/offcentre$1.zarr" "OFFCENTRE=$OFFCENTRE research/generated_row.sh ... (the row ${first##*/})"
+}
+offcentre_levels "$name" first_offcentre
 gate=$D/gate_c$name.json
 gate_read "$gate" "$D/c$name/student.pt" "$first/gate20.zarr" --generated
 out=$D/versus_$1_c$name.json

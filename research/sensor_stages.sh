@@ -115,6 +115,26 @@ low_hand() {
         --out "$out" > /dev/null
 }
 
+# offcentre_levels LAST STORE: levels 1..$OFFCENTRE of off-centre descents after readout LAST. For each of a level's
+# aim biases B (OFFCENTRE_LEVELS, cm), `STORE B SEED` appends that level's store to the array `stores` (seeds 60000,
+# 61000, ..); then the last readout is refitted 400 steps more on every store: c{LAST}oc, then c{LAST}oc2, .., the
+# last name left in `name` and each appended to the array `readouts`.
+offcentre_levels() {
+    local last=$1 store=$2 seed=60000 o b prev
+    name=$last
+    for ((o = 1; o <= ${OFFCENTRE:-0}; o++)); do
+        for b in ${OFFCENTRE_LEVELS[o - 1]}; do
+            "$store" "$b" $seed
+            seed=$((seed + 1000))
+        done
+        prev=$name
+        name=${last}oc
+        ((o == 1)) || name+=$o
+        fit "$name" "$D/fit$prev/ckpt.pt" "${stores[@]}"
+        readouts+=("$name")
+    done
+}
+
 # cell ROUND: 180 seen-kind episodes under stereo, seeds 10000.., the table's cell.
 cell() {
     local json=$R/table2/cells/${NAME}_r$1_stereo_seen.json
