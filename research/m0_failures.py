@@ -11,9 +11,10 @@ along the sight). Prints the medians for the successes and the failures apart, t
 policy's approach and close were good enough and what it did after them lost the episode. With ``--retry`` a
 scripted reflex opens the gripper and lifts the hand 8 cm whenever it has closed on nothing, then gives the
 policy back: the ceiling of teaching the policy to try again after a missed close (its own perception still
-aims the second try).
+aims the second try). ``--sensor`` (a ``trainer.sim.sensors`` spec, e.g. stereo) is what the policy reads.
 
-    python research/m0_failures.py oracle:CKPT [--kinds banana pear] [--episodes 40] [--takeover | --retry]
+    python research/m0_failures.py oracle:CKPT [--kinds banana pear] [--episodes 40] [--sensor stereo]
+        [--takeover | --retry]
 """
 
 from __future__ import annotations
@@ -24,10 +25,11 @@ import numpy as np
 import torch
 
 from research.own_frame_readout import ACROSS, SIGHT
-from trainer.policies import Observation, depth_spec, make_policy
+from trainer.policies import NEEDS_DEPTH, Observation, depth_spec, make_policy, parse
 from trainer.sim.env import EnvConfig, GraspEnv
 from trainer.sim.labels import GRASP_YAW, OFFSET, frame_labels
 from trainer.sim.rollout import run_episode, schedule
+from trainer.sim.sensors import make_sensor, reads_clean_depth
 from trainer.student.model import hand_pose, into_fingers
 from trainer.teacher.scripted import _SHUT_M, Phase, ReactiveExpert, ScriptedExpert
 
@@ -147,18 +149,22 @@ def main() -> None:
     p.add_argument("policy")
     p.add_argument("--kinds", nargs="+", default=["banana", "pear"])
     p.add_argument("--episodes", type=int, default=40)
+    p.add_argument("--sensor", default="clean", help="the depth the policy reads (trainer.sim.sensors)")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--takeover", action="store_true",
                       help="the expert drives from the policy's first close")
     mode.add_argument("--retry", action="store_true", help="a reflex opens and lifts after each missed close")
     args = p.parse_args()
     kinds = tuple(args.kinds)
-    env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=depth_spec(args.policy)))
+    reads_env_depth = NEEDS_DEPTH[parse(args.policy)[0]] and reads_clean_depth(args.sensor)
+    env = GraspEnv(EnvConfig(objects=kinds, randomise=True, depth=depth_spec(args.policy),
+                             render_depth=reads_env_depth))
     wrapper = Takeover if args.takeover else Retry if args.retry else FirstClose
     policy = wrapper(make_policy(args.policy), env)
+    sensor = None if args.sensor == "clean" else make_sensor(args.sensor)
     rows = []
     for job in schedule(kinds, 10_000, args.episodes):
-        rollout = run_episode(env, policy, job)
+        rollout = run_episode(env, policy, job, sensor=sensor)
         rows.append((job.kind, rollout.success, rollout.steps, *policy.close))
         if args.retry and policy.retries:
             outcome = "grasped" if rollout.success else "lost"
