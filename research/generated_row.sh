@@ -95,10 +95,7 @@ if ((${AIM:-0} > 0)); then  # more scenes where the aim is set, as the ceiling's
     SENSOR=$learner_sensor collect "$D/approach_$name.zarr" "$AIM" 58000 "student:$D/c$name/student.onnx" \
         "$(python -c "print(0.5 ** ($ROUNDS + 1))")" 12
     stores+=("$D/approach_$name.zarr")
-    prev=$name
-    name=${name}aim
-    fit "$name" "$D/fit$prev/ckpt.pt" "${stores[@]}"
-    readouts+=("$name")
+    refit_as "${name}aim"
 fi
 # the gate: each readout on the 20 held-out gate episodes (research/hole_threshold.sh's), on their stereo frames and
 # on this source's frames of the same views (research/stereo_errors.py)

@@ -120,19 +120,26 @@ low_hand() {
 # 61000, ..); then the last readout is refitted 400 steps more on every store: c{LAST}oc, then c{LAST}oc2, .., the
 # last name left in `name` and each appended to the array `readouts`.
 offcentre_levels() {
-    local last=$1 store=$2 seed=60000 o b prev
+    local last=$1 store=$2 seed=60000 o b new
     name=$last
     for ((o = 1; o <= ${OFFCENTRE:-0}; o++)); do
         for b in ${OFFCENTRE_LEVELS[o - 1]}; do
             "$store" "$b" $seed
             seed=$((seed + 1000))
         done
-        prev=$name
-        name=${last}oc
-        ((o == 1)) || name+=$o
-        fit "$name" "$D/fit$prev/ckpt.pt" "${stores[@]}"
-        readouts+=("$name")
+        new=${last}oc
+        ((o == 1)) || new+=$o
+        refit_as "$new"
     done
+}
+
+# refit_as NEW: the last readout ($name) refitted 400 steps more on every store as NEW, which becomes the last
+# (`name`) and is appended to the array `readouts`.
+refit_as() {
+    local prev=$name
+    name=$1
+    fit "$name" "$D/fit$prev/ckpt.pt" "${stores[@]}"
+    readouts+=("$name")
 }
 
 # cell ROUND: 180 seen-kind episodes under stereo, seeds 10000.., the table's cell.
